@@ -1,0 +1,23 @@
+"""Differentiable simulation core (the only package that imports warp).
+
+``load_scene`` (MJCF via MuJoCo) -> ``Simulator`` (kernels + model arrays on a device) -> ``step``
+(state tensors in, state tensors out, through the ``SimStep`` autograd Function).
+"""
+
+from __future__ import annotations
+
+import os
+
+import warp as wp
+
+wp.config.quiet = True
+# unrolled loops keep warp's adjoints exact; our kernels nest short loops over fingers/links/points
+wp.config.max_unroll = max(wp.config.max_unroll, 64)
+wp.init()
+if os.environ.get("DEXMOTS_VERIFY_AUTOGRAD"):
+    wp.config.verify_autograd_array_access = True
+
+from .model import AssetError, ContactParams, SceneModel, load_scene  # noqa: E402
+from .simulator import Control, SimStep, Simulator, StepOutput  # noqa: E402
+
+__all__ = ["AssetError", "ContactParams", "SceneModel", "load_scene", "Control", "SimStep", "Simulator", "StepOutput"]

@@ -1,0 +1,360 @@
+"""The physics core: warp kernels for one substep of every world, and for observations.
+
+One thread per world runs the whole substep: forward kinematics and the recursive Newton-Euler bias
+forces of every finger chain, relaxed penalty contact of every finger sample point against the object,
+the implicit (damping/PD) joint-space solve per finger, and the object's update. Loops over fingers,
+links and points have compile-time trip counts (the kernels are built per scene) and are unrolled, which
+is what keeps warp's adjoint exact (a non-unrolled loop that carries state is silently differentiated
+wrong). Everything is generic in the float type so gradient checks can run in float64.
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import functools
+
+import warp as wp
+
+from .model import HINGE, OBJECT_HINGE, SHAPE_CYLINDER, SHAPE_SPHERE
+
+__all__ = ["build_kernels", "MAX_PLANES"]
+
+MAX_PLANES = 32  # convex objects with more faces than this need an SDF (unrolled loop budget)
+CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
+LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
+LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
+LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
+FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
+
+
+@functools.lru_cache(maxsize=None)
+def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int):
+    """Return a namespace with the struct type and kernels specialised for one scene structure."""
+    F, J, P, K = num_fingers, joints, points, planes
+    OBJ_HINGE = object_kind == OBJECT_HINGE
+    dtype = float_type
+    vec3 = wp.types.vector(3, dtype)
+    vec4 = wp.types.vector(4, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    vecJ = wp.types.vector(J, dtype)
+    matJ = wp.types.matrix((J, J), dtype)
+    quat = wp.types.quaternion(dtype)
+    matJ3 = wp.types.matrix((J, 3), dtype)
+
+    @wp.struct
+    class Model:
+        base_pos: wp.array(dtype=vec3)
+        base_rot: wp.array(dtype=mat33)
+        off_pos: wp.array(dtype=vec3)
+        off_rot: wp.array(dtype=mat33)
+        axis: wp.array(dtype=vec3)
+        jtype: wp.array(dtype=wp.int32)
+        mass: wp.array(dtype=dtype)
+        com: wp.array(dtype=vec3)
+        inertia: wp.array(dtype=mat33)
+        armature: wp.array(dtype=dtype)
+        damping: wp.array(dtype=dtype)
+        friction: wp.array(dtype=dtype)
+        lower: wp.array(dtype=dtype)
+        upper: wp.array(dtype=dtype)
+        limit_ke: wp.array(dtype=dtype)
+        point_pos: wp.array(dtype=vec3)
+        point_radius: wp.array(dtype=dtype)
+        tip_pos: wp.array(dtype=vec3)
+        obj_base_pos: vec3
+        obj_base_rot: mat33
+        obj_axis: vec3
+        obj_mass: dtype
+        obj_com: vec3
+        obj_inertia: mat33
+        obj_armature: dtype
+        planes: wp.array(dtype=vec4)
+        shape_size: vec3
+        gravity: vec3
+        # contact: stiffness, damping, sharpness, friction, slip velocity, surface smoothing
+        ke: dtype
+        kd: dtype
+        beta: dtype
+        mu: dtype
+        v_slip: dtype
+        smooth: dtype
+
+    @wp.func
+    def softplus(x: dtype, beta: dtype):
+        bx = beta * x
+        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def limit_ramp(x: dtype):
+        # C1 penalty ramp: zero inside the limit, quadratic over LIMIT_WIDTH, then linear
+        if x <= dtype(0.0):
+            return dtype(0.0)
+        if x < dtype(LIMIT_WIDTH):
+            return x * x * dtype(LIMIT_CURVE)
+        return x - dtype(LIMIT_OFFSET)
+
+    @wp.func
+    def axis_angle(a: vec3, t: dtype):
+        c = wp.cos(t)
+        s = wp.sin(t)
+        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
+
+    @wp.func
+    def jac_col(jt: wp.int32, a: vec3, o: vec3, p: vec3):
+        # linear velocity of point p per unit joint velocity
+        if jt == HINGE:
+            return wp.cross(a, p - o)
+        return a
+
+    @wp.func
+    def jac_ang(jt: wp.int32, a: vec3):
+        if jt == HINGE:
+            return a
+        return vec3(dtype(0.0), dtype(0.0), dtype(0.0))
+
+    @wp.func
+    def object_sdf(m: Model, p: vec3):
+        """Signed distance (smoothed at edges) and outward unit normal, object frame."""
+        if wp.static(shape == SHAPE_SPHERE):
+            d = wp.length(p)
+            return d - m.shape_size[0], p / wp.max(d, dtype(1e-9))
+        if wp.static(shape == SHAPE_CYLINDER):
+            rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1e-12))
+            s_r = rho - m.shape_size[0]
+            s_z = wp.abs(p[2]) - m.shape_size[1]
+            hi = wp.max(s_r, s_z)
+            w_r = wp.exp((s_r - hi) / m.smooth)
+            w_z = wp.exp((s_z - hi) / m.smooth)
+            n = w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
+            return hi + m.smooth * wp.log(w_r + w_z), wp.normalize(n)
+        # convex polytope: log-sum-exp smooth max over face planes
+        hi = dtype(-1e9)
+        for k in range(K):
+            pl = m.planes[k]
+            hi = wp.max(hi, pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3])
+        total = dtype(0.0)
+        n = vec3(dtype(0.0), dtype(0.0), dtype(0.0))
+        for k in range(K):
+            pl = m.planes[k]
+            w = wp.exp((pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi) / m.smooth)
+            total = total + w
+            n = n + w * vec3(pl[0], pl[1], pl[2])
+        return hi + m.smooth * wp.log(total), wp.normalize(n)
+
+    @wp.func
+    def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
+        """Object pose (origin, rotation), velocity of the origin and angular velocity, world frame."""
+        if wp.static(OBJ_HINGE):
+            th = q[w, F * J]
+            a = m.obj_base_rot * m.obj_axis
+            return m.obj_base_pos, m.obj_base_rot * axis_angle(m.obj_axis, th), vec3(), a * qd[w, F * J]
+        o = F * J
+        rq = quat(q[w, o + 4], q[w, o + 5], q[w, o + 6], q[w, o + 3])
+        pos = vec3(q[w, o], q[w, o + 1], q[w, o + 2])
+        return pos, wp.quat_to_matrix(rq), vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2]), vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
+
+    @wp.kernel(module="unique")
+    def substep(
+        m: Model,
+        q: wp.array2d(dtype=dtype),
+        qd: wp.array2d(dtype=dtype),
+        tau: wp.array2d(dtype=dtype),
+        q_target: wp.array2d(dtype=dtype),
+        kp: wp.array2d(dtype=dtype),
+        kd: wp.array2d(dtype=dtype),
+        params: wp.array2d(dtype=dtype),
+        wrench_in: wp.array2d(dtype=dtype),
+        cforce_in: wp.array(dtype=dtype),
+        dt: dtype,
+        inv_substeps: dtype,
+        q_out: wp.array2d(dtype=dtype),
+        qd_out: wp.array2d(dtype=dtype),
+        wrench_out: wp.array2d(dtype=dtype),
+        cforce_out: wp.array(dtype=dtype),
+    ):
+        w = wp.tid()
+        xo, Ro, vo, wo = object_frame(m, q, qd, w)
+        f_obj = vec3()
+        t_obj = vec3()  # about the object origin xo
+        cforce = dtype(0.0)
+        cutoff = dtype(CONTACT_CUTOFF) / m.beta
+        for f in range(F):
+            R = m.base_rot[f]
+            x = m.base_pos[f]
+            om = vec3()  # angular velocity of the parent link
+            al = vec3()  # its angular acceleration (velocity-product part, qdd = 0)
+            acc = -m.gravity  # acceleration of the parent's joint origin (gravity as base acceleration)
+            o_prev = x
+            O = matJ3()  # joint origins, one row per link
+            A = matJ3()  # joint axes (world)
+            M = matJ()
+            bias = vecJ()
+            gen = vecJ()  # contact generalized forces
+            for k in range(J):
+                i = f * J + k
+                jt = m.jtype[i]
+                x = x + R * m.off_pos[i]
+                R = R * m.off_rot[i]
+                a = R * m.axis[i]
+                qk = q[w, i]
+                qdk = qd[w, i]
+                if jt != HINGE:
+                    x = x + a * qk
+                r = x - o_prev
+                acc = acc + wp.cross(al, r) + wp.cross(om, wp.cross(om, r))
+                if jt == HINGE:
+                    R = R * axis_angle(m.axis[i], qk)
+                    al = al + wp.cross(om, a * qdk)
+                    om = om + a * qdk
+                else:
+                    acc = acc + dtype(2.0) * wp.cross(om, a * qdk)
+                o_prev = x
+                for c in range(3):
+                    O[k, c] = x[c]
+                    A[k, c] = a[c]
+                # link inertia: mass matrix and bias-force contributions through the Jacobian
+                cw = x + R * m.com[i]
+                Iw = R * m.inertia[i] * wp.transpose(R)
+                rc = cw - x
+                a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
+                f_lin = m.mass[i] * a_c
+                f_ang = Iw * al + wp.cross(om, Iw * om)
+                for j1 in range(J):
+                    if j1 <= k:
+                        jv1 = jac_col(m.jtype[f * J + j1], A[j1], O[j1], cw)
+                        jw1 = jac_ang(m.jtype[f * J + j1], A[j1])
+                        bias[j1] = bias[j1] + wp.dot(jv1, f_lin) + wp.dot(jw1, f_ang)
+                        for j2 in range(J):
+                            if j2 <= k:
+                                jv2 = jac_col(m.jtype[f * J + j2], A[j2], O[j2], cw)
+                                jw2 = jac_ang(m.jtype[f * J + j2], A[j2])
+                                M[j1, j2] = M[j1, j2] + m.mass[i] * wp.dot(jv1, jv2) + wp.dot(jw1, Iw * jw2)
+                # contact of this link's sample spheres with the object
+                for s in range(P):
+                    pi = i * P + s
+                    rad = m.point_radius[pi]
+                    if rad > dtype(0.0):
+                        p = x + R * m.point_pos[pi]
+                        d, n_o = object_sdf(m, wp.transpose(Ro) * (p - xo))
+                        phi = rad - d
+                        if phi > -cutoff:
+                            n = Ro * n_o
+                            cp = p - n * rad
+                            v_f = vec3()
+                            for j1 in range(J):
+                                if j1 <= k:
+                                    v_f = v_f + jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp) * qd[w, f * J + j1]
+                            v_rel = v_f - vo - wp.cross(wo, cp - xo)
+                            vn = wp.dot(v_rel, n)
+                            fn = m.ke * softplus(phi, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+                            vt = v_rel - vn * n
+                            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+                            fc = fn * n + ft
+                            cforce = cforce + fn
+                            f_obj = f_obj - fc
+                            t_obj = t_obj - wp.cross(cp - xo, fc)
+                            for j1 in range(J):
+                                if j1 <= k:
+                                    gen[j1] = gen[j1] + wp.dot(jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp), fc)
+            # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
+            rhs = vecJ()
+            for k in range(J):
+                i = f * J + k
+                qk = q[w, i]
+                qdk = qd[w, i]
+                damp = m.damping[i] + kd[w, i]
+                M[k, k] = M[k, k] + m.armature[i] + dt * damp + dt * dt * kp[w, i]
+                lim = m.limit_ke[i] * (
+                    limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
+                )
+                fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+                rhs[k] = (
+                    tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
+                )
+            qdd = wp.inverse(M) * rhs
+            for k in range(J):
+                i = f * J + k
+                v_new = qd[w, i] + dt * qdd[k]
+                qd_out[w, i] = v_new
+                q_out[w, i] = q[w, i] + dt * v_new
+
+        o = F * J
+        if wp.static(OBJ_HINGE):
+            a = m.obj_base_rot * m.obj_axis
+            cw = xo + Ro * m.obj_com
+            Iw = Ro * m.obj_inertia * wp.transpose(Ro)
+            arm = wp.cross(a, cw - xo)
+            inertia = wp.dot(a, Iw * a) + m.obj_mass * wp.dot(arm, arm) + m.obj_armature
+            damp = params[w, 0]
+            th_d = qd[w, o]
+            torque = wp.dot(a, t_obj + wp.cross(cw - xo, m.obj_mass * m.gravity))
+            torque = torque - damp * th_d - params[w, 1] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
+            v_new = th_d + dt * torque / (inertia + dt * damp)
+            qd_out[w, o] = v_new
+            q_out[w, o] = q[w, o] + dt * v_new
+        else:
+            # free body: origin at the centre of mass, velocities in the world frame
+            Iw = Ro * m.obj_inertia * wp.transpose(Ro)
+            v_new = vo + dt * (f_obj / m.obj_mass + m.gravity)
+            w_new = wo + dt * (wp.inverse(Iw) * (t_obj - wp.cross(wo, Iw * wo)))
+            x_new = xo + dt * v_new
+            rq = quat(q[w, o + 4], q[w, o + 5], q[w, o + 6], q[w, o + 3])
+            rq = wp.normalize(rq + quat(w_new[0], w_new[1], w_new[2], dtype(0.0)) * rq * (dtype(0.5) * dt))
+            for c in range(3):
+                q_out[w, o + c] = x_new[c]
+                qd_out[w, o + c] = v_new[c]
+                qd_out[w, o + 3 + c] = w_new[c]
+            q_out[w, o + 3] = rq[3]
+            q_out[w, o + 4] = rq[0]
+            q_out[w, o + 5] = rq[1]
+            q_out[w, o + 6] = rq[2]
+        for c in range(3):
+            wrench_out[w, c] = wrench_in[w, c] + inv_substeps * f_obj[c]
+            wrench_out[w, 3 + c] = wrench_in[w, 3 + c] + inv_substeps * t_obj[c]
+        cforce_out[w] = cforce_in[w] + inv_substeps * cforce
+
+    @wp.func
+    def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
+        rq = wp.quat_from_matrix(R)
+        out[w, b * 7 + 0] = x[0]
+        out[w, b * 7 + 1] = x[1]
+        out[w, b * 7 + 2] = x[2]
+        out[w, b * 7 + 3] = rq[3]
+        out[w, b * 7 + 4] = rq[0]
+        out[w, b * 7 + 5] = rq[1]
+        out[w, b * 7 + 6] = rq[2]
+
+    @wp.kernel(module="unique")
+    def observe(
+        m: Model,
+        q: wp.array2d(dtype=dtype),
+        qd: wp.array2d(dtype=dtype),
+        body_pose: wp.array2d(dtype=dtype),
+        tips: wp.array2d(dtype=dtype),
+    ):
+        """Poses (pos + wxyz quat) of every hand link and the object, and fingertip positions."""
+        w = wp.tid()
+        for f in range(F):
+            R = m.base_rot[f]
+            x = m.base_pos[f]
+            for k in range(J):
+                i = f * J + k
+                x = x + R * m.off_pos[i]
+                R = R * m.off_rot[i]
+                if m.jtype[i] == HINGE:
+                    R = R * axis_angle(m.axis[i], q[w, i])
+                else:
+                    x = x + (R * m.axis[i]) * q[w, i]
+                write_pose(body_pose, w, i, x, R)
+            tip = x + R * m.tip_pos[f]
+            for c in range(3):
+                tips[w, f * 3 + c] = tip[c]
+        xo, Ro, vo, wo = object_frame(m, q, qd, w)
+        write_pose(body_pose, w, F * J, xo, Ro)
+
+    class Kernels:
+        pass
+
+    ns = Kernels()
+    ns.Model, ns.substep, ns.observe = Model, substep, observe
+    ns.vec3, ns.vec4, ns.mat33 = vec3, vec4, mat33
+    return ns

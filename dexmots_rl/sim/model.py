@@ -1,0 +1,327 @@
+"""Scene description: an MJCF file compiled by MuJoCo, reduced to the arrays our kernels need.
+
+The simulator is specialised for what every DexMOTS scene is: a fixed-base hand made of serial finger
+chains (one hinge or slide joint per link) plus one object, either on a hinge or free-floating. MuJoCo does
+the parsing and compilation (inertias from geometry, defaults, angles), so there is no XML code here; this
+module only walks the compiled ``MjModel``. Naming conventions in the MJCF:
+
+* body ``hand`` is the fixed base; each child body starts one finger chain;
+* body ``object`` is the operated object; its joint is a ``hinge`` (e.g. a knob) or ``free`` (e.g. a cube);
+* sites named ``*tip*`` mark fingertips (one per finger, on its last link).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["AssetError", "SceneModel", "ContactParams", "load_scene"]
+
+HINGE, SLIDE = 0, 1
+OBJECT_HINGE, OBJECT_FREE = 0, 1
+SHAPE_CONVEX, SHAPE_SPHERE, SHAPE_CYLINDER = 0, 1, 2
+
+
+class AssetError(ValueError):
+    """An asset file is missing, does not parse, or does not follow the scene conventions."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactParams:
+    """Relaxed penalty contact between finger geometry and the object.
+
+    The normal force is ``stiffness * softplus(sharpness * penetration) / sharpness``: it is smooth and
+    non-zero slightly before touching, which is what gives useful gradients before contact is made.
+    ``damping`` (s/m) scales the force by ``max(1 - damping * v_normal, 0)`` (Hunt-Crossley style).
+    Friction is Coulomb with the slip velocity smoothed by ``slip_velocity``:
+    ``f_t = -mu * f_n * v_t / sqrt(|v_t|^2 + slip_velocity^2)``.
+    """
+
+    stiffness: float = 2.0e4
+    damping: float = 1.0
+    sharpness: float = 200.0
+    friction: float = 1.0
+    slip_velocity: float = 0.02
+    surface_smoothing: float = 0.01
+    points_per_capsule: int = 4
+
+
+@dataclasses.dataclass
+class SceneModel:
+    """Numpy arrays describing one scene (shared by every world)."""
+
+    path: str
+    num_fingers: int
+    joints_per_finger: int
+    points_per_link: int
+    finger_names: list[str]
+    joint_names: list[str]
+    body_names: list[str]
+    # finger chains, indexed [finger * joints_per_finger + link]
+    finger_base_pos: np.ndarray  # [F, 3] world position of the frame each finger chain starts from
+    finger_base_rot: np.ndarray  # [F, 3, 3]
+    link_offset_pos: np.ndarray  # [F*J, 3] link frame in its parent's frame, at q = 0
+    link_offset_rot: np.ndarray  # [F*J, 3, 3]
+    joint_axis: np.ndarray  # [F*J, 3] in the link frame
+    joint_type: np.ndarray  # [F*J] HINGE or SLIDE
+    link_mass: np.ndarray  # [F*J]
+    link_com: np.ndarray  # [F*J, 3] in the link frame
+    link_inertia: np.ndarray  # [F*J, 3, 3] about the com, in the link frame
+    dof_armature: np.ndarray  # [F*J]
+    dof_damping: np.ndarray  # [F*J]
+    dof_friction: np.ndarray  # [F*J]
+    dof_lower: np.ndarray  # [F*J]
+    dof_upper: np.ndarray  # [F*J]
+    dof_limited: np.ndarray  # [F*J] bool
+    dof_inertia0: np.ndarray  # [F*J] diagonal of the mass matrix at q = 0 (for stiffness scaling)
+    actuator_gear: np.ndarray  # [F*J] motor gear per hand dof (0 when unactuated)
+    # contact sample points on finger links, indexed [(finger * J + link) * P + point]
+    point_pos: np.ndarray  # [F*J*P, 3] in the link frame
+    point_radius: np.ndarray  # [F*J*P] 0 = padding
+    tip_pos: np.ndarray  # [F, 3] fingertip site in the last link's frame
+    # the object
+    object_kind: int
+    object_base_pos: np.ndarray  # [3] hinge: the frame the hinge rotates in; free: unused
+    object_base_rot: np.ndarray  # [3, 3]
+    object_axis: np.ndarray  # [3] hinge axis in the object frame
+    object_mass: float
+    object_com: np.ndarray  # [3] in the object frame
+    object_inertia: np.ndarray  # [3, 3] about the com, object frame
+    object_armature: float
+    object_damping: float
+    object_friction: float
+    object_q0: np.ndarray  # initial generalized coordinates of the object
+    object_shape: int
+    object_planes: np.ndarray  # [K, 4] outward normal + offset (n.p <= d inside), object frame
+    object_shape_size: np.ndarray  # [2] sphere: (radius, 0); cylinder: (radius, half-height)
+    gravity: np.ndarray
+    timestep: float
+
+    @property
+    def num_hand_dofs(self) -> int:
+        return self.num_fingers * self.joints_per_finger
+
+    @property
+    def object_nq(self) -> int:
+        return 1 if self.object_kind == OBJECT_HINGE else 7
+
+    @property
+    def object_nv(self) -> int:
+        return 1 if self.object_kind == OBJECT_HINGE else 6
+
+
+def _quat_to_mat(q: np.ndarray) -> np.ndarray:
+    import mujoco
+
+    out = np.zeros(9)
+    mujoco.mju_quat2Mat(out, np.asarray(q, dtype=np.float64))
+    return out.reshape(3, 3)
+
+
+def _body_inertia(m, b: int) -> tuple[float, np.ndarray, np.ndarray]:
+    rot = _quat_to_mat(m.body_iquat[b])
+    return float(m.body_mass[b]), m.body_ipos[b].copy(), rot @ np.diag(m.body_inertia[b]) @ rot.T
+
+
+def _link_points(m, b: int, per_capsule: int) -> list[tuple[np.ndarray, float]]:
+    """Contact sample spheres for the capsule/sphere geoms of body ``b`` (in the body frame)."""
+    import mujoco
+
+    points = []
+    for g in range(m.ngeom):
+        if m.geom_bodyid[g] != b:
+            continue
+        rot, pos = _quat_to_mat(m.geom_quat[g]), m.geom_pos[g]
+        gtype, size = int(m.geom_type[g]), m.geom_size[g]
+        if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+            points.append((pos.copy(), float(size[0])))
+        elif gtype == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
+            for s in np.linspace(-1.0, 1.0, per_capsule):
+                points.append((pos + rot[:, 2] * size[1] * s, float(size[0])))
+        else:
+            raise AssetError(
+                f"geom {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)!r} on a finger link: only "
+                "capsules and spheres are supported on the hand"
+            )
+    return points
+
+
+def _object_shape(m, b: int, smoothing: float) -> tuple[int, np.ndarray, np.ndarray]:
+    import mujoco
+    import trimesh
+
+    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+    if len(geoms) != 1:
+        raise AssetError(f"body 'object' must have exactly one geom, found {len(geoms)}")
+    g = geoms[0]
+    gtype, size = int(m.geom_type[g]), m.geom_size[g]
+    rot, pos = _quat_to_mat(m.geom_quat[g]), m.geom_pos[g]
+    none = np.zeros((0, 4))
+    if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+        return SHAPE_SPHERE, none, np.array([size[0], 0.0])
+    if gtype == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+        if np.abs(pos).max() > 1e-9 or np.abs(rot - np.eye(3)).max() > 1e-9:
+            raise AssetError("object cylinder geom must sit at the object body frame")
+        return SHAPE_CYLINDER, none, np.array([size[0], size[1]])
+    if gtype == int(mujoco.mjtGeom.mjGEOM_BOX):
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
+    elif gtype == int(mujoco.mjtGeom.mjGEOM_MESH):
+        mid = m.geom_dataid[g]
+        start, count = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+        corners = m.mesh_vert[start : start + count].astype(np.float64)
+    else:
+        raise AssetError(f"object geom type {int(gtype)} is not supported (box, mesh, sphere, cylinder)")
+    corners = corners @ rot.T + pos
+    hull = trimesh.convex.convex_hull(corners)
+    normals = np.asarray(hull.facets_normal) if len(hull.facets) else np.zeros((0, 3))
+    origins = np.asarray(hull.facets_origin) if len(hull.facets) else np.zeros((0, 3))
+    # faces that are not part of a multi-triangle facet are facets of their own
+    lone = np.setdiff1d(np.arange(len(hull.faces)), np.concatenate(hull.facets) if len(hull.facets) else [])
+    normals = np.concatenate([normals, hull.face_normals[lone]])
+    origins = np.concatenate([origins, hull.triangles_center[lone]])
+    offsets = np.einsum("ij,ij->i", normals, origins)
+    planes = np.unique(np.round(np.concatenate([normals, offsets[:, None]], 1), 9), axis=0)
+    del smoothing
+    return SHAPE_CONVEX, planes, np.zeros(2)
+
+
+def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneModel:
+    """Compile an MJCF file with MuJoCo and extract the hand chains and the object.
+
+    Raises :class:`AssetError` naming the file and the problem when it does not parse or does not
+    follow the conventions in the module docstring.
+    """
+    import mujoco
+
+    contact = contact or ContactParams()
+    path = Path(path)
+    if not path.is_file():
+        raise AssetError(f"asset file {str(path)!r} does not exist")
+    try:
+        m = mujoco.MjModel.from_xml_path(str(path))
+    except Exception as exc:  # mujoco raises ValueError with the parser's message
+        raise AssetError(f"asset file {str(path)!r} does not parse: {exc}") from exc
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+
+    def name(obj, i):
+        return mujoco.mj_id2name(m, obj, i) or f"#{i}"
+
+    hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
+    obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+    if hand < 0 or obj < 0:
+        raise AssetError(f"asset file {str(path)!r} needs bodies named 'hand' and 'object'")
+    if m.body_jntnum[hand] != 0:
+        raise AssetError("body 'hand' must be fixed (no joints)")
+    children = {b: [c for c in range(m.nbody) if m.body_parentid[c] == b and c != b] for b in range(m.nbody)}
+
+    chains = []
+    for root in children[hand]:
+        chain, b = [], root
+        while True:
+            if m.body_jntnum[b] != 1:
+                raise AssetError(f"finger body {name(mujoco.mjtObj.mjOBJ_BODY, b)!r} needs exactly one joint")
+            chain.append(b)
+            if not children[b]:
+                break
+            if len(children[b]) > 1:
+                raise AssetError(f"finger body {name(mujoco.mjtObj.mjOBJ_BODY, b)!r} branches; fingers are chains")
+            b = children[b][0]
+        chains.append(chain)
+    if not chains or len({len(c) for c in chains}) != 1:
+        raise AssetError("every finger must have the same number of links (at least one)")
+    num_f, num_j = len(chains), len(chains[0])
+    hand_bodies = [b for c in chains for b in c]
+    jids = [int(m.body_jntadr[b]) for b in hand_bodies]
+    if [int(m.jnt_dofadr[j]) for j in jids] != list(range(num_f * num_j)):
+        raise AssetError("hand joints must come first in the MJCF, finger by finger")
+    for j in jids:
+        if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            raise AssetError(f"joint {name(mujoco.mjtObj.mjOBJ_JOINT, j)!r}: hand joints are hinge or slide")
+        if np.abs(m.jnt_pos[j]).max() > 1e-9:
+            raise AssetError(f"joint {name(mujoco.mjtObj.mjOBJ_JOINT, j)!r} must sit at its body origin")
+
+    per_link = [_link_points(m, b, contact.points_per_capsule) for b in hand_bodies]
+    num_p = max(1, max(len(p) for p in per_link))
+    point_pos = np.zeros((len(hand_bodies) * num_p, 3))
+    point_radius = np.zeros(len(hand_bodies) * num_p)
+    for i, pts in enumerate(per_link):
+        for k, (p, r) in enumerate(pts):
+            point_pos[i * num_p + k], point_radius[i * num_p + k] = p, r
+
+    tips = []
+    for chain in chains:
+        sites = [s for s in range(m.nsite) if m.site_bodyid[s] == chain[-1] and "tip" in name(mujoco.mjtObj.mjOBJ_SITE, s)]
+        tips.append(m.site_pos[sites[0]].copy() if sites else np.zeros(3))
+
+    inertias = [_body_inertia(m, b) for b in hand_bodies]
+    gear = np.zeros(num_f * num_j)
+    for a in range(m.nu):
+        if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] in jids:
+            gear[jids.index(m.actuator_trnid[a, 0])] = m.actuator_gear[a, 0]
+    dofs = np.arange(num_f * num_j)
+    limited = m.jnt_limited[jids].astype(bool)
+
+    if m.body_jntnum[obj] != 1:
+        raise AssetError("body 'object' needs exactly one joint (hinge or free)")
+    oj = int(m.body_jntadr[obj])
+    if int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_HINGE):
+        kind, q0 = OBJECT_HINGE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 1].copy()
+    elif int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_FREE):
+        kind, q0 = OBJECT_FREE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 7].copy()
+    else:
+        raise AssetError("the object joint must be a hinge or a free joint")
+    parent = m.body_parentid[obj]
+    base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
+    base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
+    shape, planes, size = _object_shape(m, obj, contact.surface_smoothing)
+    omass, ocom, oinertia = _body_inertia(m, obj)
+    odof = int(m.jnt_dofadr[oj])
+
+    return SceneModel(
+        path=str(path),
+        num_fingers=num_f,
+        joints_per_finger=num_j,
+        points_per_link=num_p,
+        finger_names=[name(mujoco.mjtObj.mjOBJ_BODY, c[0]) for c in chains],
+        joint_names=[name(mujoco.mjtObj.mjOBJ_JOINT, j) for j in jids],
+        body_names=[name(mujoco.mjtObj.mjOBJ_BODY, b) for b in hand_bodies] + ["object"],
+        finger_base_pos=np.stack([d.xpos[hand]] * num_f),
+        finger_base_rot=np.stack([d.xmat[hand].reshape(3, 3)] * num_f),
+        link_offset_pos=m.body_pos[hand_bodies].copy(),
+        link_offset_rot=np.stack([_quat_to_mat(m.body_quat[b]) for b in hand_bodies]),
+        joint_axis=m.jnt_axis[jids].copy(),
+        joint_type=np.array([HINGE if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) else SLIDE for j in jids]),
+        link_mass=np.array([i[0] for i in inertias]),
+        link_com=np.stack([i[1] for i in inertias]),
+        link_inertia=np.stack([i[2] for i in inertias]),
+        dof_armature=m.dof_armature[dofs].copy(),
+        dof_damping=m.dof_damping[dofs].copy(),
+        dof_friction=m.dof_frictionloss[dofs].copy(),
+        dof_lower=np.where(limited, m.jnt_range[jids, 0], -1e9),
+        dof_upper=np.where(limited, m.jnt_range[jids, 1], 1e9),
+        dof_limited=limited,
+        dof_inertia0=m.dof_M0[dofs].copy(),
+        actuator_gear=gear,
+        point_pos=point_pos,
+        point_radius=point_radius,
+        tip_pos=np.stack(tips),
+        object_kind=kind,
+        object_base_pos=base_pos,
+        object_base_rot=base_rot,
+        object_axis=m.jnt_axis[oj].copy(),
+        object_mass=omass,
+        object_com=ocom,
+        object_inertia=oinertia,
+        object_armature=float(m.dof_armature[odof]),
+        object_damping=float(m.dof_damping[odof]),
+        object_friction=float(m.dof_frictionloss[odof]),
+        object_q0=q0,
+        object_shape=shape,
+        object_planes=planes,
+        object_shape_size=size,
+        gravity=m.opt.gravity.copy(),
+        timestep=float(m.opt.timestep),
+    )

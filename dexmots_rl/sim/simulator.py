@@ -1,0 +1,249 @@
+"""Simulator (model arrays on a device) and SimStep, the autograd Function for one env step.
+
+Builder -> model -> state/control -> step, as in Newton/Brax: :func:`load_scene` builds the numpy
+:class:`SceneModel`, :class:`Simulator` puts it on a device and owns the kernels, and
+:meth:`Simulator.step` maps ``(joint_q, joint_qd, control, params)`` tensors to the next state plus
+observations. The state lives in torch tensors owned by the caller (the env keeps them in its
+TensorDict), so a step is a pure function and SHAC can chain gradients through many of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+import warp as wp
+
+from .kernels import MAX_PLANES, build_kernels
+from .model import OBJECT_HINGE, ContactParams, SceneModel
+
+__all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
+
+LIMIT_FREQUENCY = 60.0  # rad/s: joint-limit springs are as stiff as a 60 rad/s oscillator on the joint's inertia
+
+
+@dataclasses.dataclass
+class Control:
+    """Joint-space drive for the hand, one row per world: ``tau + kp (q_target - q) - kd qd``.
+
+    Torque control sets ``tau`` only; position control sets ``q_target``/``kp``/``kd``; variable
+    impedance also varies ``kp`` per step. The PD terms are integrated implicitly (stable at any gain).
+    """
+
+    tau: torch.Tensor
+    q_target: torch.Tensor
+    kp: torch.Tensor
+    kd: torch.Tensor
+
+
+class StepOutput(tuple):
+    """``(joint_q, joint_qd, wrench, contact_force, body_pose, fingertips)`` after one env step.
+
+    wrench: [N, 6] mean over substeps of the net contact force and torque on the object (world frame,
+    torque about the object origin); contact_force: [N] mean over substeps of the summed normal contact
+    force magnitudes; body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object;
+    fingertips: [N, F, 3].
+    """
+
+    __slots__ = ()
+    names = ("joint_q", "joint_qd", "wrench", "contact_force", "body_pose", "fingertips")
+
+    def __getattr__(self, item):
+        return self[self.names.index(item)]
+
+
+def _wp_dtype(dtype: torch.dtype):
+    if dtype == torch.float32:
+        return wp.float32
+    if dtype == torch.float64:
+        return wp.float64
+    raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+
+
+class Simulator:
+    """Many worlds of one scene on one device; each env step is ``substeps`` kernel launches.
+
+    Example:
+        >>> import torch
+        >>> from dexmots_rl.assets import asset_path
+        >>> from dexmots_rl.sim import Simulator, load_scene
+        >>> sim = Simulator(load_scene(asset_path("claw_screw.xml")), num_worlds=4)
+        >>> q, qd = sim.initial_state()
+        >>> out = sim.step(q, qd, sim.zero_control(), sim.default_params())
+        >>> out.joint_q.shape
+        torch.Size([4, 5])
+    """
+
+    def __init__(
+        self,
+        scene: SceneModel,
+        num_worlds: int,
+        device: str = "cpu",
+        dtype: torch.dtype = torch.float32,
+        substeps: int = 16,
+        dt: float | None = None,
+        contact: ContactParams | None = None,
+    ):
+        if num_worlds <= 0:
+            raise ValueError(f"num_worlds must be positive, got {num_worlds}")
+        if substeps <= 0:
+            raise ValueError(f"substeps must be positive, got {substeps}")
+        if scene.object_shape == 0 and len(scene.object_planes) > MAX_PLANES:
+            raise ValueError(f"object has {len(scene.object_planes)} faces; at most {MAX_PLANES} are supported")
+        self.scene, self.num_worlds, self.substeps = scene, num_worlds, substeps
+        self.torch_device = torch.device(device)
+        self.device = wp.device_from_torch(self.torch_device)
+        self.dtype = dtype
+        self.sub_dt = scene.timestep if dt is None else dt / substeps
+        self.dt = self.sub_dt * substeps
+        self.contact = contact or ContactParams()
+        self.nq = scene.num_hand_dofs + scene.object_nq
+        self.nv = scene.num_hand_dofs + scene.object_nv
+        self.nu = scene.num_hand_dofs
+        self.num_bodies = scene.num_hand_dofs + 1
+        self.kernels = build_kernels(
+            _wp_dtype(dtype),
+            scene.num_fingers,
+            scene.joints_per_finger,
+            scene.points_per_link,
+            len(scene.object_planes),
+            scene.object_kind,
+            scene.object_shape,
+        )
+        self.model = self._make_model()
+        self.launches_per_step = substeps + 1
+
+    # ----------------------------------------------------------------------------------------- set-up
+    def _make_model(self):
+        s, k, c = self.scene, self.kernels, self.contact
+        wdt = _wp_dtype(self.dtype)
+
+        def arr(x, dtype):
+            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
+
+        limit_ke = s.dof_inertia0 * LIMIT_FREQUENCY**2 * s.dof_limited
+        m = k.Model()
+        m.base_pos, m.base_rot = arr(s.finger_base_pos, k.vec3), arr(s.finger_base_rot, k.mat33)
+        m.off_pos, m.off_rot = arr(s.link_offset_pos, k.vec3), arr(s.link_offset_rot, k.mat33)
+        m.axis = arr(s.joint_axis, k.vec3)
+        m.jtype = wp.array(s.joint_type.astype(np.int32), dtype=wp.int32, device=self.device)
+        m.mass, m.com, m.inertia = arr(s.link_mass, wdt), arr(s.link_com, k.vec3), arr(s.link_inertia, k.mat33)
+        m.armature, m.damping, m.friction = arr(s.dof_armature, wdt), arr(s.dof_damping, wdt), arr(s.dof_friction, wdt)
+        m.lower, m.upper, m.limit_ke = arr(s.dof_lower, wdt), arr(s.dof_upper, wdt), arr(limit_ke, wdt)
+        m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
+        m.tip_pos = arr(s.tip_pos, k.vec3)
+        m.obj_base_pos, m.obj_base_rot = k.vec3(*s.object_base_pos), k.mat33(*s.object_base_rot.ravel())
+        m.obj_axis, m.obj_mass = k.vec3(*s.object_axis), wdt(s.object_mass)
+        m.obj_com, m.obj_inertia = k.vec3(*s.object_com), k.mat33(*s.object_inertia.ravel())
+        m.obj_armature = wdt(s.object_armature)
+        planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
+        m.planes = arr(planes, k.vec4)
+        m.shape_size = k.vec3(*s.object_shape_size, 0.0)
+        m.gravity = k.vec3(*s.gravity)
+        m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
+        m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)
+        return m
+
+    def _zeros(self, *shape):
+        return torch.zeros(*shape, dtype=self.dtype, device=self.torch_device)
+
+    def initial_state(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The MJCF's reference configuration in every world (hand at 0, object at its q0)."""
+        q = self._zeros(self.num_worlds, self.nq)
+        q[:, self.nu :] = torch.as_tensor(self.scene.object_q0, dtype=self.dtype)
+        return q, self._zeros(self.num_worlds, self.nv)
+
+    def zero_control(self) -> Control:
+        z = self._zeros(self.num_worlds, self.nu)
+        return Control(z, z, z, z)
+
+    def default_params(self) -> torch.Tensor:
+        """Per-world object parameters: [joint damping, joint friction] (from the MJCF)."""
+        p = torch.tensor([self.scene.object_damping, self.scene.object_friction], dtype=self.dtype)
+        return p.to(self.torch_device).expand(self.num_worlds, 2).contiguous()
+
+    # ------------------------------------------------------------------------------------------- step
+    def step(self, joint_q, joint_qd, control: Control, params) -> StepOutput:
+        """One env step (``substeps`` physics substeps); differentiable w.r.t. every tensor input."""
+        n = joint_q.shape[0]
+        if n != self.num_worlds:
+            raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
+        return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd, params))
+
+    def observe(self, joint_q, joint_qd=None):
+        """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping."""
+        joint_qd = self._zeros(joint_q.shape[0], self.nv) if joint_qd is None else joint_qd
+        q = wp.from_torch(joint_q.detach().to(self.dtype).contiguous())
+        qd = wp.from_torch(joint_qd.detach().to(self.dtype).contiguous())
+        pose = self._zeros(joint_q.shape[0], self.num_bodies * 7)
+        tips = self._zeros(joint_q.shape[0], self.scene.num_fingers * 3)
+        wp.launch(self.kernels.observe, dim=joint_q.shape[0], inputs=[self.model, q, qd],
+                  outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
+        return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
+
+    def _run(self, inputs: list[torch.Tensor], record: bool):
+        """Launch all substeps; returns output tensors, and the tape + warp arrays when recording."""
+        n = inputs[0].shape[0]
+        wrap = [wp.from_torch(t.detach().to(self.dtype).contiguous(), requires_grad=record) for t in inputs]
+        q, qd, tau, q_target, kp, kd, params = wrap
+        outs = [self._zeros(n, self.nq), self._zeros(n, self.nv), self._zeros(n, 6), self._zeros(n),
+                self._zeros(n, self.num_bodies * 7), self._zeros(n, self.scene.num_fingers * 3)]
+        out_arrays = [wp.from_torch(t, requires_grad=record) for t in outs]
+        wrench = wp.from_torch(self._zeros(n, 6), requires_grad=record)
+        cforce = wp.from_torch(self._zeros(n), requires_grad=record)
+        tape = wp.Tape() if record else None
+        inv = 1.0 / self.substeps
+        with tape if record else _nullcontext():
+            for s in range(self.substeps):
+                last = s == self.substeps - 1
+                if last:
+                    nxt = out_arrays[:4]
+                else:
+                    nxt = [wp.from_torch(self._zeros(*t.shape), requires_grad=record) for t in outs[:4]]
+                wp.launch(self.kernels.substep, dim=n, device=self.device,
+                          inputs=[self.model, q, qd, tau, q_target, kp, kd, params, wrench, cforce,
+                                  self.sub_dt, inv], outputs=nxt)
+                q, qd, wrench, cforce = nxt
+            wp.launch(self.kernels.observe, dim=n, inputs=[self.model, q, qd], outputs=out_arrays[4:],
+                      device=self.device)
+        return outs, (tape, wrap, out_arrays) if record else None
+
+
+class _nullcontext:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+class SimStep(torch.autograd.Function):
+    """One env step as an autograd Function: forward records a ``wp.Tape`` only when an input needs a
+    gradient; backward replays it with the incoming adjoints. Inputs: ``sim, joint_q, joint_qd, tau,
+    q_target, kp, kd, params``; outputs as :class:`StepOutput`."""
+
+    @staticmethod
+    def forward(ctx, sim: Simulator, *inputs):
+        record = any(ctx.needs_input_grad[1:])
+        outs, taped = sim._run(list(inputs), record)
+        ctx.sim, ctx.taped = sim, taped
+        outs[4] = outs[4].view(-1, sim.num_bodies, 7)
+        outs[5] = outs[5].view(-1, sim.scene.num_fingers, 3)
+        return tuple(outs)
+
+    @staticmethod
+    def backward(ctx, *grad_outputs):
+        tape, in_arrays, out_arrays = ctx.taped
+        sim = ctx.sim
+        grads = {}
+        for arr, g in zip(out_arrays, grad_outputs):
+            g = torch.zeros(arr.shape, dtype=sim.dtype, device=sim.torch_device) if g is None else g
+            grads[arr] = wp.from_torch(g.reshape(arr.shape).to(sim.dtype).contiguous())
+        tape.backward(grads=grads)
+        result = [None]
+        for arr, needs in zip(in_arrays, ctx.needs_input_grad[1:]):
+            result.append(wp.to_torch(arr.grad).clone() if needs else None)
+        tape.reset()
+        ctx.taped = None
+        return tuple(result)
