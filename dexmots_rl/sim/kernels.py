@@ -218,22 +218,30 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
                 f_lin = m.mass[i] * a_c
                 f_ang = Iw * al + wp.cross(om, Iw * om)
+                # Rows of A for links beyond k are still zero, so their Jacobian columns vanish.
+                # Warp's adjoint is wrong for read-modify-write of vector/matrix components, so every
+                # component is written once into a fresh local and summed as a whole.
+                bias_k = vecJ()
+                M_k = matJ()
                 for j1 in range(J):
-                    if j1 <= k:
-                        jv1 = jac_col(m.jtype[f * J + j1], A[j1], O[j1], cw)
-                        jw1 = jac_ang(m.jtype[f * J + j1], A[j1])
-                        bias[j1] = bias[j1] + wp.dot(jv1, f_lin) + wp.dot(jw1, f_ang)
-                        for j2 in range(J):
-                            if j2 <= k:
-                                jv2 = jac_col(m.jtype[f * J + j2], A[j2], O[j2], cw)
-                                jw2 = jac_ang(m.jtype[f * J + j2], A[j2])
-                                M[j1, j2] = M[j1, j2] + m.mass[i] * wp.dot(jv1, jv2) + wp.dot(jw1, Iw * jw2)
+                    jv1 = jac_col(m.jtype[f * J + j1], A[j1], O[j1], cw)
+                    jw1 = jac_ang(m.jtype[f * J + j1], A[j1])
+                    bias_k[j1] = wp.dot(jv1, f_lin) + wp.dot(jw1, f_ang)
+                    for j2 in range(J):
+                        jv2 = jac_col(m.jtype[f * J + j2], A[j2], O[j2], cw)
+                        jw2 = jac_ang(m.jtype[f * J + j2], A[j2])
+                        M_k[j1, j2] = m.mass[i] * wp.dot(jv1, jv2) + wp.dot(jw1, Iw * jw2)
+                bias = bias + bias_k
+                M = M + M_k
                 # contact of this link's sample spheres with the object
                 for s in range(P):
                     pi = i * P + s
                     rad = m.point_radius[pi]
+                    p = x + R * m.point_pos[pi]
+                    fc = vec3()
+                    fn = dtype(0.0)
+                    cp = p
                     if rad > dtype(0.0):
-                        p = x + R * m.point_pos[pi]
                         d, n_o = object_sdf(m, wp.transpose(Ro) * (p - xo))
                         phi = rad - d
                         if phi > -cutoff:
@@ -241,28 +249,29 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                             cp = p - n * rad
                             v_f = vec3()
                             for j1 in range(J):
-                                if j1 <= k:
-                                    v_f = v_f + jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp) * qd[w, f * J + j1]
+                                v_f = v_f + jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp) * qd[w, f * J + j1]
                             v_rel = v_f - vo - wp.cross(wo, cp - xo)
                             vn = wp.dot(v_rel, n)
                             fn = m.ke * softplus(phi, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
                             vt = v_rel - vn * n
                             ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
                             fc = fn * n + ft
-                            cforce = cforce + fn
-                            f_obj = f_obj - fc
-                            t_obj = t_obj - wp.cross(cp - xo, fc)
-                            for j1 in range(J):
-                                if j1 <= k:
-                                    gen[j1] = gen[j1] + wp.dot(jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp), fc)
+                    cforce = cforce + fn
+                    f_obj = f_obj - fc
+                    t_obj = t_obj - wp.cross(cp - xo, fc)
+                    gen_s = vecJ()
+                    for j1 in range(J):
+                        gen_s[j1] = wp.dot(jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp), fc)
+                    gen = gen + gen_s
             # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
             rhs = vecJ()
+            diag = matJ()
             for k in range(J):
                 i = f * J + k
                 qk = q[w, i]
                 qdk = qd[w, i]
                 damp = m.damping[i] + kd[w, i]
-                M[k, k] = M[k, k] + m.armature[i] + dt * damp + dt * dt * kp[w, i]
+                diag[k, k] = m.armature[i] + dt * damp + dt * dt * kp[w, i]
                 lim = m.limit_ke[i] * (
                     limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
                 )
@@ -270,7 +279,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 rhs[k] = (
                     tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
                 )
-            qdd = wp.inverse(M) * rhs
+            qdd = wp.inverse(M + diag) * rhs
             for k in range(J):
                 i = f * J + k
                 v_new = qd[w, i] + dt * qdd[k]
