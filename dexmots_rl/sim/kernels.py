@@ -11,6 +11,7 @@ wrong). Everything is generic in the float type so gradient checks can run in fl
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
 import functools
+import os
 
 import warp as wp
 
@@ -18,6 +19,9 @@ from .model import HINGE, OBJECT_HINGE, SHAPE_CYLINDER, SHAPE_SPHERE
 
 __all__ = ["build_kernels", "MAX_PLANES"]
 
+# clang -O1 compiles the big unrolled substep kernel (with its adjoint) several times faster than the
+# default -O2 for a similar run time; override with DEXMOTS_WARP_OPT=0..3 (see benchmarks/)
+OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "1"))
 MAX_PLANES = 32  # convex objects with more faces than this need an SDF (unrolled loop budget)
 CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
@@ -152,7 +156,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         pos = vec3(q[w, o], q[w, o + 1], q[w, o + 2])
         return pos, wp.quat_to_matrix(rq), vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2]), vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL})
     def substep(
         m: Model,
         q: wp.array2d(dtype=dtype),
@@ -332,7 +336,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         out[w, b * 7 + 5] = rq[1]
         out[w, b * 7 + 6] = rq[2]
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL})
     def observe(
         m: Model,
         q: wp.array2d(dtype=dtype),

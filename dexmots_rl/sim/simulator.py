@@ -243,7 +243,8 @@ class SimStep(torch.autograd.Function):
         tape.backward(grads=grads)
         result = [None]
         for arr, needs in zip(in_arrays, ctx.needs_input_grad[1:]):
-            result.append(wp.to_torch(arr.grad).clone() if needs else None)
+            # a world that blew up must not poison the others' gradients (the env resets it)
+            result.append(torch.nan_to_num(wp.to_torch(arr.grad), nan=0.0, posinf=0.0, neginf=0.0) if needs else None)
         tape.reset()
         ctx.taped = None
         return tuple(result)

@@ -1,0 +1,215 @@
+"""DexEnv: a functional, batched torchrl ``EnvBase`` over the warp simulator.
+
+The full physical state of every world travels in the TensorDict under ``"sim"``
+(``("sim", "joint_q")``, ``("sim", "joint_qd")``, ``("sim", "params")``), so a step is a pure function of
+its input TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
+(rewards, observations) back to the actions and the input state through :class:`~dexmots_rl.sim.SimStep`.
+
+Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward` and
+:meth:`task_success`.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from ..sim import SceneModel, Simulator
+from .actions import ActionMap, validate_action
+
+__all__ = ["DexEnv", "MAX_JOINT_SPEED"]
+
+MAX_JOINT_SPEED = 1.0e3  # rad/s (m/s); a world faster than this has blown up and is reset
+
+
+class DexEnv(EnvBase):
+    """Base class: specs, functional step/reset, blow-up handling. See the task modules."""
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        scene: SceneModel,
+        num_envs: int,
+        device: str | torch.device = "cpu",
+        differentiable: bool = True,
+        action: str = "torque",
+        max_episode_steps: int = 100,
+        substeps: int = 16,
+        dtype: torch.dtype = torch.float32,
+        seed: int | None = None,
+        contact=None,
+    ):
+        if not isinstance(num_envs, int) or num_envs <= 0:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if max_episode_steps <= 0:
+            raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
+        device = torch.device(device)
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=substeps, contact=contact)
+        self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, max_episode_steps
+        self.dtype = dtype
+        self.actions = ActionMap(self.sim, action)
+        self.action_type = action
+        self._make_specs()
+        self.generator = torch.Generator(device=device)
+        self._set_seed(seed if seed is not None else int(torch.empty((), dtype=torch.int64).random_().item()))
+
+    # ------------------------------------------------------------------------------------------ specs
+    def _obs_shapes(self) -> dict:
+        s, sim = self.sim.scene, self.sim
+        return {
+            ("hand", "q"): (sim.nu,),
+            ("hand", "qd"): (sim.nu,),
+            ("object", "pose"): (7,),
+            ("object", "q"): (s.object_nq if s.object_kind == 0 else 0,),
+            ("object", "qd"): (s.object_nv,),
+            ("object", "wrench"): (6,),
+            ("object", "contact_force"): (1,),
+            ("fingertips", "pos"): (s.num_fingers, 3),
+            "achieved_goal": (self.goal_dim,),
+            "desired_goal": (self.goal_dim,),
+            ("sim", "joint_q"): (sim.nq,),
+            ("sim", "joint_qd"): (sim.nv,),
+            ("sim", "params"): (2,),
+        }
+
+    def _make_specs(self):
+        n, dev, dt = self.num_envs, self.device, self.dtype
+        obs = Composite(shape=(n,), device=dev)
+        for key, shape in self._obs_shapes().items():
+            obs[key] = Unbounded(shape=(n, *shape), dtype=dt, device=dev)
+        obs[("task", "step")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
+        obs[("info", "sim_failures")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
+        obs["success"] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev)
+        self.observation_spec = obs
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.sim.nu), dtype=dt, device=dev)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=dt, device=dev)
+        self.full_done_spec = Composite(
+            done=Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev),
+            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev),
+            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev),
+            shape=(n,),
+            device=dev,
+        )
+
+    # -------------------------------------------------------------------------------------- task API
+    goal_dim = 1
+
+    def sample_initial(self, n: int) -> dict:
+        """Initial ``joint_q``, ``joint_qd``, ``params`` and ``goal`` for ``n`` worlds (use self.generator)."""
+        raise NotImplementedError
+
+    def achieved_goal(self, obs: dict) -> torch.Tensor:
+        raise NotImplementedError
+
+    def task_reward(self, obs: dict, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------------------------ internals
+    def _set_seed(self, seed: int | None):
+        self.generator.manual_seed(int(seed) % (2**63))
+        self._seed = seed
+
+    def _rand(self, *shape) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.generator, device=self.device, dtype=self.dtype)
+
+    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips) -> dict:
+        nu = self.sim.nu
+        obs = {
+            ("hand", "q"): q[:, :nu],
+            ("hand", "qd"): qd[:, :nu],
+            ("object", "pose"): body_pose[:, -1],
+            ("object", "q"): q[:, nu:] if self.sim.scene.object_kind == 0 else q[:, :0],
+            ("object", "qd"): qd[:, nu:],
+            ("object", "wrench"): wrench,
+            ("object", "contact_force"): contact_force.unsqueeze(-1),
+            ("fingertips", "pos"): tips,
+            ("sim", "joint_q"): q,
+            ("sim", "joint_qd"): qd,
+            ("sim", "params"): params,
+            "desired_goal": goal,
+        }
+        obs["achieved_goal"] = self.achieved_goal(obs)
+        return obs
+
+    def _initial_obs(self, n_mask: torch.Tensor | None = None) -> dict:
+        init = self.sample_initial(self.num_envs)
+        pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"])
+        zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
+        zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
+        return self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        obs = self._initial_obs()
+        n = self.num_envs
+        step = torch.zeros(n, 1, dtype=torch.int64, device=self.device)
+        failures = torch.zeros(n, 1, dtype=torch.int64, device=self.device)
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(n, 1)
+        if mask is not None and not bool(mask.all()):
+            # partial reset: keep every entry of the worlds that are not reset
+            for key in list(obs):
+                old = tensordict.get(key, None)
+                if old is not None:
+                    m = mask.reshape(n, *([1] * (obs[key].dim() - 1)))
+                    obs[key] = torch.where(m, obs[key], old)
+            old_step = tensordict.get(("task", "step"), None)
+            if old_step is not None:
+                step = torch.where(mask, step, old_step)
+        if tensordict is not None and ("info", "sim_failures") in tensordict.keys(True):
+            failures = tensordict.get(("info", "sim_failures"))
+        out = TensorDict(obs, batch_size=[n], device=self.device)
+        out.set(("task", "step"), step)
+        out.set(("info", "sim_failures"), failures)
+        out.set("success", self.task_success(obs, obs["desired_goal"]))
+        false = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
+        out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        validate_action(action, self.num_envs, self.sim.nu)
+        q = tensordict.get(("sim", "joint_q"))
+        qd = tensordict.get(("sim", "joint_qd"))
+        params = tensordict.get(("sim", "params"))
+        goal = tensordict.get("desired_goal")
+        if not self.differentiable:
+            q, qd, params, action = q.detach(), qd.detach(), params.detach(), action.detach()
+        with torch.set_grad_enabled(self.differentiable and torch.is_grad_enabled()):
+            out = self.sim.step(q, qd, self.actions(action.to(self.dtype)), params)
+            obs = self._observe(out.joint_q, out.joint_qd, params, goal, out.wrench, out.contact_force,
+                                out.body_pose, out.fingertips)
+            reward = self.task_reward(obs, goal, action)
+        step = tensordict.get(("task", "step")) + 1
+        failures = tensordict.get(("info", "sim_failures")).clone()
+        blown = ~(torch.isfinite(out.joint_q).all(-1, keepdim=True) & torch.isfinite(out.joint_qd).all(-1, keepdim=True))
+        blown |= out.joint_qd.detach().abs().amax(-1, keepdim=True).nan_to_num(float("inf")) > MAX_JOINT_SPEED
+        if bool(blown.any()):
+            # reset the worlds that blew up so that no NaN reaches the batch; count them
+            fresh = self._initial_obs()
+            for key in list(obs):
+                m = blown.reshape(-1, *([1] * (obs[key].dim() - 1)))
+                obs[key] = torch.where(m, fresh[key], obs[key])
+            reward = torch.where(blown, torch.zeros_like(reward), reward)
+            step = torch.where(blown, torch.zeros_like(step), step)
+            failures = failures + blown.long()
+        truncated = step >= self.max_episode_steps
+        terminated = blown
+        next_td = TensorDict(obs, batch_size=[self.num_envs], device=self.device)
+        next_td.update({
+            "reward": reward,
+            ("task", "step"): step,
+            ("info", "sim_failures"): failures,
+            "success": self.task_success(obs, goal),
+            "terminated": terminated,
+            "truncated": truncated,
+            "done": terminated | truncated,
+        })
+        return next_td
