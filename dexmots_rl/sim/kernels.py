@@ -19,10 +19,13 @@ from .model import HINGE, OBJECT_HINGE, SHAPE_CYLINDER, SHAPE_SPHERE
 
 __all__ = ["build_kernels", "MAX_PLANES"]
 
-# clang -O1 compiles the big unrolled substep kernel (with its adjoint) several times faster than the
-# default -O2 for a similar run time; override with DEXMOTS_WARP_OPT=0..3 (see benchmarks/)
-OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "1"))
+# clang optimisation level for the CPU build: -O2 runs 2.5x faster than -O1 at the same compile time
+# (~85 s for the claw substep kernel with its adjoint, 2 cores); -O0 compiles in 14 s but runs 18x slower.
+# Override with DEXMOTS_WARP_OPT=0..3 (e.g. 0 while iterating on kernel code).
+OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "2"))
+FAST_MATH = os.environ.get("DEXMOTS_WARP_FAST_MATH", "0") == "1"
 MAX_PLANES = 32  # convex objects with more faces than this need an SDF (unrolled loop budget)
+LSE_CUTOFF = 12.0  # smooth-max terms this many smoothing lengths below the max are dropped
 CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
@@ -71,6 +74,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         obj_com: vec3
         obj_inertia: mat33
         obj_armature: dtype
+        obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
         planes: wp.array(dtype=vec4)
         shape_size: vec3
         gravity: vec3
@@ -139,9 +143,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         n = vec3(dtype(0.0), dtype(0.0), dtype(0.0))
         for k in range(K):
             pl = m.planes[k]
-            w = wp.exp((pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi) / m.smooth)
-            total = total + w
-            n = n + w * vec3(pl[0], pl[1], pl[2])
+            gap = pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi
+            if gap > dtype(-LSE_CUTOFF) * m.smooth:  # faces far below the max weigh < e^-LSE_CUTOFF
+                w = wp.exp(gap / m.smooth)
+                total = total + w
+                n = n + w * vec3(pl[0], pl[1], pl[2])
         return hi + m.smooth * wp.log(total), wp.normalize(n)
 
     @wp.func
@@ -156,7 +162,174 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         pos = vec3(q[w, o], q[w, o + 1], q[w, o + 2])
         return pos, wp.quat_to_matrix(rq), vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2]), vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
 
-    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL})
+    @wp.func
+    def point_jacobian(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3, O: matJ3, p: vec3):
+        """Row j: velocity of point p per unit velocity of joint j (zero rows for joints not yet set)."""
+        Jv = matJ3()
+        for j in range(J):
+            v = jac_col(jtype[base + j], A[j], O[j], p)
+            for c in range(3):
+                Jv[j, c] = v[c]
+        return Jv
+
+    @wp.func
+    def angular_jacobian(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3):
+        Jw = matJ3()
+        for j in range(J):
+            v = jac_ang(jtype[base + j], A[j])
+            for c in range(3):
+                Jw[j, c] = v[c]
+        return Jw
+
+    @wp.func
+    def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                      A: matJ3, O: matJ3, qdf: vecJ):
+        """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
+
+        Returns the force on the finger, the contact point, the normal force magnitude and the
+        generalized force on the finger's joints.
+        """
+        d, n_o = object_sdf(m, wp.transpose(Ro) * (p - xo))
+        phi = rad - d
+        fc = vec3()
+        fn = dtype(0.0)
+        cp = p
+        gen = vecJ()
+        if phi > -dtype(CONTACT_CUTOFF) / m.beta:
+            n = Ro * n_o
+            cp = p - n * rad
+            Jv = point_jacobian(m.jtype, base, A, O, cp)
+            v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, cp - xo)
+            vn = wp.dot(v_rel, n)
+            fn = m.ke * softplus(phi, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            vt = v_rel - vn * n
+            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+            fc = fn * n + ft
+            gen = Jv * fc
+        return fc, cp, fn, gen
+
+    @wp.func
+    def link_contacts(m: Model, x: vec3, R: mat33, i: int, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                      A: matJ3, O: matJ3, qdf: vecJ):
+        """Contact of link i's sample spheres with the object: force and torque (about xo) on the object,
+        summed normal force, generalized force on the finger. Far spheres cost one distance test."""
+        f_obj = vec3()
+        t_obj = vec3()
+        cforce = dtype(0.0)
+        gen = vecJ()
+        reach = m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta
+        for s in range(P):
+            pi = i * P + s
+            rad = m.point_radius[pi]
+            p = x + R * m.point_pos[pi]
+            if rad > dtype(0.0) and wp.length(wp.transpose(Ro) * (p - xo)) < reach + rad:
+                fc, cp, fn, gen_s = point_contact(m, p, rad, Ro, xo, vo, wo, base, A, O, qdf)
+                cforce = cforce + fn
+                f_obj = f_obj - fc
+                t_obj = t_obj - wp.cross(cp - xo, fc)
+                gen = gen + gen_s
+        return f_obj, t_obj, cforce, gen
+
+    @wp.func
+    def finger_step(
+        m: Model,
+        f: int,
+        w: int,
+        q: wp.array2d(dtype=dtype),
+        qd: wp.array2d(dtype=dtype),
+        tau: wp.array2d(dtype=dtype),
+        q_target: wp.array2d(dtype=dtype),
+        kp: wp.array2d(dtype=dtype),
+        kd: wp.array2d(dtype=dtype),
+        dt: dtype,
+        Ro: mat33,
+        xo: vec3,
+        vo: vec3,
+        wo: vec3,
+        q_out: wp.array2d(dtype=dtype),
+        qd_out: wp.array2d(dtype=dtype),
+    ):
+        """Advance finger f of world w by one substep; returns the contact wrench it puts on the object
+        (force, torque about xo) and its summed normal force. A function rather than inline code keeps
+        each compiled frame small: warp value-initialises every local of a frame on entry."""
+        f_obj = vec3()
+        t_obj = vec3()
+        cforce = dtype(0.0)
+        R = m.base_rot[f]
+        x = m.base_pos[f]
+        om = vec3()  # angular velocity of the parent link
+        al = vec3()  # its angular acceleration (velocity-product part, qdd = 0)
+        acc = -m.gravity  # acceleration of the parent's joint origin (gravity as base acceleration)
+        o_prev = x
+        O = matJ3()  # joint origins, one row per link
+        A = matJ3()  # joint axes (world)
+        M = matJ()
+        bias = vecJ()
+        gen = vecJ()  # contact generalized forces
+        qdf = vecJ()
+        for k in range(J):
+            qdf[k] = qd[w, f * J + k]
+        for k in range(J):
+            i = f * J + k
+            jt = m.jtype[i]
+            x = x + R * m.off_pos[i]
+            R = R * m.off_rot[i]
+            a = R * m.axis[i]
+            qk = q[w, i]
+            qdk = qd[w, i]
+            if jt != HINGE:
+                x = x + a * qk
+            r = x - o_prev
+            acc = acc + wp.cross(al, r) + wp.cross(om, wp.cross(om, r))
+            if jt == HINGE:
+                R = R * axis_angle(m.axis[i], qk)
+                al = al + wp.cross(om, a * qdk)
+                om = om + a * qdk
+            else:
+                acc = acc + dtype(2.0) * wp.cross(om, a * qdk)
+            o_prev = x
+            for c in range(3):
+                O[k, c] = x[c]
+                A[k, c] = a[c]
+            # link inertia: mass matrix and bias-force contributions through the Jacobian
+            cw = x + R * m.com[i]
+            Iw = R * m.inertia[i] * wp.transpose(R)
+            rc = cw - x
+            a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
+            Jv = point_jacobian(m.jtype, f * J, A, O, cw)
+            Jw = angular_jacobian(m.jtype, f * J, A)
+            M = M + m.mass[i] * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
+            bias = bias + Jv * (m.mass[i] * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
+            lf, lt, lc, lg = link_contacts(m, x, R, i, Ro, xo, vo, wo, f * J, A, O, qdf)
+            f_obj = f_obj + lf
+            t_obj = t_obj + lt
+            cforce = cforce + lc
+            gen = gen + lg
+        # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
+        rhs = vecJ()
+        diag = matJ()
+        for k in range(J):
+            i = f * J + k
+            qk = q[w, i]
+            qdk = qd[w, i]
+            damp = m.damping[i] + kd[w, i]
+            diag[k, k] = m.armature[i] + dt * damp + dt * dt * kp[w, i]
+            lim = m.limit_ke[i] * (
+                limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
+            )
+            fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+            rhs[k] = (
+                tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
+            )
+        qdd = wp.inverse(M + diag) * rhs
+        for k in range(J):
+            i = f * J + k
+            v_new = qd[w, i] + dt * qdd[k]
+            qd_out[w, i] = v_new
+            q_out[w, i] = q[w, i] + dt * v_new
+        return f_obj, t_obj, cforce
+
+    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
     def substep(
         m: Model,
         q: wp.array2d(dtype=dtype),
@@ -180,116 +353,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         f_obj = vec3()
         t_obj = vec3()  # about the object origin xo
         cforce = dtype(0.0)
-        cutoff = dtype(CONTACT_CUTOFF) / m.beta
         for f in range(F):
-            R = m.base_rot[f]
-            x = m.base_pos[f]
-            om = vec3()  # angular velocity of the parent link
-            al = vec3()  # its angular acceleration (velocity-product part, qdd = 0)
-            acc = -m.gravity  # acceleration of the parent's joint origin (gravity as base acceleration)
-            o_prev = x
-            O = matJ3()  # joint origins, one row per link
-            A = matJ3()  # joint axes (world)
-            M = matJ()
-            bias = vecJ()
-            gen = vecJ()  # contact generalized forces
-            for k in range(J):
-                i = f * J + k
-                jt = m.jtype[i]
-                x = x + R * m.off_pos[i]
-                R = R * m.off_rot[i]
-                a = R * m.axis[i]
-                qk = q[w, i]
-                qdk = qd[w, i]
-                if jt != HINGE:
-                    x = x + a * qk
-                r = x - o_prev
-                acc = acc + wp.cross(al, r) + wp.cross(om, wp.cross(om, r))
-                if jt == HINGE:
-                    R = R * axis_angle(m.axis[i], qk)
-                    al = al + wp.cross(om, a * qdk)
-                    om = om + a * qdk
-                else:
-                    acc = acc + dtype(2.0) * wp.cross(om, a * qdk)
-                o_prev = x
-                for c in range(3):
-                    O[k, c] = x[c]
-                    A[k, c] = a[c]
-                # link inertia: mass matrix and bias-force contributions through the Jacobian
-                cw = x + R * m.com[i]
-                Iw = R * m.inertia[i] * wp.transpose(R)
-                rc = cw - x
-                a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
-                f_lin = m.mass[i] * a_c
-                f_ang = Iw * al + wp.cross(om, Iw * om)
-                # Rows of A for links beyond k are still zero, so their Jacobian columns vanish.
-                # Warp's adjoint is wrong for read-modify-write of vector/matrix components, so every
-                # component is written once into a fresh local and summed as a whole.
-                bias_k = vecJ()
-                M_k = matJ()
-                for j1 in range(J):
-                    jv1 = jac_col(m.jtype[f * J + j1], A[j1], O[j1], cw)
-                    jw1 = jac_ang(m.jtype[f * J + j1], A[j1])
-                    bias_k[j1] = wp.dot(jv1, f_lin) + wp.dot(jw1, f_ang)
-                    for j2 in range(J):
-                        jv2 = jac_col(m.jtype[f * J + j2], A[j2], O[j2], cw)
-                        jw2 = jac_ang(m.jtype[f * J + j2], A[j2])
-                        M_k[j1, j2] = m.mass[i] * wp.dot(jv1, jv2) + wp.dot(jw1, Iw * jw2)
-                bias = bias + bias_k
-                M = M + M_k
-                # contact of this link's sample spheres with the object
-                for s in range(P):
-                    pi = i * P + s
-                    rad = m.point_radius[pi]
-                    p = x + R * m.point_pos[pi]
-                    fc = vec3()
-                    fn = dtype(0.0)
-                    cp = p
-                    if rad > dtype(0.0):
-                        d, n_o = object_sdf(m, wp.transpose(Ro) * (p - xo))
-                        phi = rad - d
-                        if phi > -cutoff:
-                            n = Ro * n_o
-                            cp = p - n * rad
-                            v_f = vec3()
-                            for j1 in range(J):
-                                v_f = v_f + jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp) * qd[w, f * J + j1]
-                            v_rel = v_f - vo - wp.cross(wo, cp - xo)
-                            vn = wp.dot(v_rel, n)
-                            fn = m.ke * softplus(phi, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
-                            vt = v_rel - vn * n
-                            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
-                            fc = fn * n + ft
-                    cforce = cforce + fn
-                    f_obj = f_obj - fc
-                    t_obj = t_obj - wp.cross(cp - xo, fc)
-                    gen_s = vecJ()
-                    for j1 in range(J):
-                        gen_s[j1] = wp.dot(jac_col(m.jtype[f * J + j1], A[j1], O[j1], cp), fc)
-                    gen = gen + gen_s
-            # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
-            rhs = vecJ()
-            diag = matJ()
-            for k in range(J):
-                i = f * J + k
-                qk = q[w, i]
-                qdk = qd[w, i]
-                damp = m.damping[i] + kd[w, i]
-                diag[k, k] = m.armature[i] + dt * damp + dt * dt * kp[w, i]
-                lim = m.limit_ke[i] * (
-                    limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
-                )
-                fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
-                rhs[k] = (
-                    tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
-                )
-            qdd = wp.inverse(M + diag) * rhs
-            for k in range(J):
-                i = f * J + k
-                v_new = qd[w, i] + dt * qdd[k]
-                qd_out[w, i] = v_new
-                q_out[w, i] = q[w, i] + dt * v_new
-
+            ff, ft, fc = finger_step(m, f, w, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo, q_out, qd_out)
+            f_obj = f_obj + ff
+            t_obj = t_obj + ft
+            cforce = cforce + fc
         o = F * J
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
@@ -336,7 +404,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         out[w, b * 7 + 5] = rq[1]
         out[w, b * 7 + 6] = rq[2]
 
-    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL})
+    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
     def observe(
         m: Model,
         q: wp.array2d(dtype=dtype),

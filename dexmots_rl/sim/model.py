@@ -96,6 +96,7 @@ class SceneModel:
     object_shape: int
     object_planes: np.ndarray  # [K, 4] outward normal + offset (n.p <= d inside), object frame
     object_shape_size: np.ndarray  # [2] sphere: (radius, 0); cylinder: (radius, half-height)
+    object_bound: float  # radius of a sphere about the object origin enclosing its geometry
     gravity: np.ndarray
     timestep: float
 
@@ -148,7 +149,7 @@ def _link_points(m, b: int, per_capsule: int) -> list[tuple[np.ndarray, float]]:
     return points
 
 
-def _object_shape(m, b: int, smoothing: float) -> tuple[int, np.ndarray, np.ndarray]:
+def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float]:
     import mujoco
     import trimesh
 
@@ -160,11 +161,11 @@ def _object_shape(m, b: int, smoothing: float) -> tuple[int, np.ndarray, np.ndar
     rot, pos = _quat_to_mat(m.geom_quat[g]), m.geom_pos[g]
     none = np.zeros((0, 4))
     if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
-        return SHAPE_SPHERE, none, np.array([size[0], 0.0])
+        return SHAPE_SPHERE, none, np.array([size[0], 0.0]), float(size[0] + np.linalg.norm(pos))
     if gtype == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
         if np.abs(pos).max() > 1e-9 or np.abs(rot - np.eye(3)).max() > 1e-9:
             raise AssetError("object cylinder geom must sit at the object body frame")
-        return SHAPE_CYLINDER, none, np.array([size[0], size[1]])
+        return SHAPE_CYLINDER, none, np.array([size[0], size[1]]), float(np.hypot(size[0], size[1]))
     if gtype == int(mujoco.mjtGeom.mjGEOM_BOX):
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
     elif gtype == int(mujoco.mjtGeom.mjGEOM_MESH):
@@ -183,8 +184,7 @@ def _object_shape(m, b: int, smoothing: float) -> tuple[int, np.ndarray, np.ndar
     origins = np.concatenate([origins, hull.triangles_center[lone]])
     offsets = np.einsum("ij,ij->i", normals, origins)
     planes = np.unique(np.round(np.concatenate([normals, offsets[:, None]], 1), 9), axis=0)
-    del smoothing
-    return SHAPE_CONVEX, planes, np.zeros(2)
+    return SHAPE_CONVEX, planes, np.zeros(2), float(np.linalg.norm(corners, axis=1).max())
 
 
 def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneModel:
@@ -276,7 +276,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     parent = m.body_parentid[obj]
     base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
     base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
-    shape, planes, size = _object_shape(m, obj, contact.surface_smoothing)
+    shape, planes, size, bound = _object_shape(m, obj)
     omass, ocom, oinertia = _body_inertia(m, obj)
     odof = int(m.jnt_dofadr[oj])
 
@@ -322,6 +322,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         object_shape=shape,
         object_planes=planes,
         object_shape_size=size,
+        object_bound=bound,
         gravity=m.opt.gravity.copy(),
         timestep=float(m.opt.timestep),
     )

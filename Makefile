@@ -1,0 +1,34 @@
+# Two commands on a fresh machine with Python 3.11 + pip:
+#   make run    set up .venv and run the main job
+#   make test   set up .venv and run the test suite
+# Warp kernels compile once per scene/precision (~1-2 min each on 2 cores) and are cached in
+# ~/.cache/warp (or $WARP_CACHE_PATH), which survives fresh clones on the same machine.
+
+PYTHON ?= python3.11
+VENV ?= .venv
+PY := $(VENV)/bin/python
+
+.PHONY: setup run test bench clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# the CPU build of torch first: a bare torch requirement would pull the multi-GB CUDA build
+	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e ".[test]"
+	touch $@
+
+run: setup
+	$(VENV)/bin/dexmots-rollout --num-envs 16 --steps 100
+
+test: setup
+	$(PY) -m pytest -q
+
+bench: setup
+	$(VENV)/bin/dexmots-bench throughput --task screw_claw --json
+	$(VENV)/bin/dexmots-bench grad --task screw_claw --json
+
+clean:
+	rm -rf $(VENV) *.egg-info .pytest_cache
