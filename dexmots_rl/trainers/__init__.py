@@ -1,0 +1,1 @@
+"""Entry points: rollout (main job), bench."""
