@@ -321,7 +321,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             rhs[k] = (
                 tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
             )
-        qdd = wp.inverse(M + diag) * rhs
+        if wp.static(J == 1):
+            qdd = vecJ(rhs[0] / (M[0, 0] + diag[0, 0]))
+        else:
+            qdd = wp.inverse(M + diag) * rhs
         for k in range(J):
             i = f * J + k
             v_new = qd[w, i] + dt * qdd[k]
