@@ -1,0 +1,116 @@
+"""``dexmots-bench``: simulator throughput against MuJoCo, and gradient quality against finite differences.
+
+    dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda]
+    dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6]
+
+Every number is measured in the same run (nothing is read from files). The result is printed to stdout
+as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
+:mod:`.bench_throughput` and :mod:`.bench_grad`; ``benchmarks/*.py`` are thin runnable wrappers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import sys
+
+from .bench_setup import BENCH_TASKS
+
+__all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
+
+log = logging.getLogger(__name__)
+
+# targets the gradient benchmark reports against (not used to tune anything)
+GOALS = {"median_rel_err_with_contact": 0.05, "grad_growth_at_longest_horizon": 10.0}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dexmots-bench", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="bench", required=True)
+
+    def common(p):
+        p.add_argument("--task", default="screw_claw", choices=sorted(BENCH_TASKS))
+        p.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
+        p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+        p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
+
+    p = sub.add_parser("throughput", help="env-steps/s: forward, forward+backward, MuJoCo")
+    common(p)
+    p.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 64, 256])
+    p.add_argument("--substeps", type=int, default=16)
+    p.add_argument("--min-time", type=float, default=1.0, help="seconds of timed work per number")
+    p.add_argument("--settle-steps", type=int, default=20, help="env steps from the open pose into contact")
+    p.add_argument("--chunk-steps", type=int, default=16, help="env steps per timed chunk (from the contact state)")
+
+    p = sub.add_parser("grad", help="AD vs central finite differences in float64")
+    common(p)
+    p.add_argument("--horizons", type=int, nargs="+", default=[1, 8, 32])
+    p.add_argument("--eps", type=float, default=1e-6)
+    p.add_argument("--num-entries", type=int, default=16, help="action entries checked per row")
+    p.add_argument("--floor-rel", type=float, default=1e-3,
+                   help="rel_err denominator floor, relative to max |dL/da| of the row")
+    p.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+def _grad_goals(result: dict) -> dict:
+    rows = result["rows"]
+    longest = max(r["horizon"] for r in rows)
+    return {
+        "median_rel_err_with_contact": all(r["median_rel_err"] <= GOALS["median_rel_err_with_contact"]
+                                           for r in rows if r["contact"]),
+        "grad_growth_at_longest_horizon": all(r["grad_growth"] <= GOALS["grad_growth_at_longest_horizon"]
+                                              for r in rows if r["horizon"] == longest),
+    }
+
+
+def format_table(result: dict) -> str:
+    """A readable table of a result dict."""
+    rows = result["rows"]
+    cols = list(rows[0])
+    fmt = {bool: str, int: str, float: lambda x: f"{x:.4g}"}
+    cells = [[fmt.get(type(r[c]), str)(r[c]) for c in cols] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
+    head = {k: v for k, v in result.items() if k not in ("rows", "goals", "goals_met")}
+    lines = [" ".join(f"{k}={v}" for k, v in head.items()),
+             "  ".join(c.rjust(w) for c, w in zip(cols, widths))]
+    lines += ["  ".join(x.rjust(w) for x, w in zip(row, widths)) for row in cells]
+    if "goals" in result:
+        lines += [f"goal {k} <= {v}: {'met' if result['goals_met'][k] else 'NOT met'}" for k, v in result["goals"].items()]
+    return "\n".join(lines)
+
+
+def run(argv: list[str] | None = None) -> dict:
+    """Parse ``argv``, run the chosen benchmark, return its result dict (nothing printed to stdout)."""
+    return _execute(build_parser().parse_args(argv))
+
+
+def _execute(args: argparse.Namespace) -> dict:
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(message)s")
+    # warp reports kernel compilation with print(); keep stdout for the result alone
+    with contextlib.redirect_stdout(sys.stderr):
+        if args.bench == "throughput":
+            from .bench_throughput import run_throughput
+
+            return run_throughput(args.task, args.num_envs, args.device, args.substeps, args.min_time,
+                                  args.settle_steps, args.chunk_steps)
+        from .bench_grad import run_grad
+
+        result = run_grad(args.task, args.horizons, args.eps, args.num_entries, args.floor_rel, args.seed,
+                          args.device)
+        result["goals"], result["goals_met"] = dict(GOALS), _grad_goals(result)
+        return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: print the result as JSON (``--json``) or as a table."""
+    args = build_parser().parse_args(argv)
+    result = _execute(args)
+    print(json.dumps(result) if args.json else format_table(result))
+
+
+if __name__ == "__main__":
+    main()

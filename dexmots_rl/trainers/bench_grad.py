@@ -1,0 +1,119 @@
+"""Gradient quality: autodiff through ``Simulator.step`` against central finite differences, in float64.
+
+For each horizon H and contact case, a rollout of H env steps with ``Control.tau = action * gear`` from
+the task's touching pose (``contact=True``: squeezing action plus noise) or its open pose far from the
+object (``contact=False``: noise only) gives a scalar loss
+
+    L = 1/H * sum_t [(theta_t - theta*)^2 + sum_f |p_{f,t} - c|^2] + (theta_H - theta*)^2
+
+(theta: object angle, theta* = ``GOAL_ANGLE``; p_f: fingertips; c: the object's origin). dL/da is
+compared on a random subset of the H x nu action entries with ``(L(a + eps e) - L(a - eps e)) / 2 eps``.
+The nominal rollout and every perturbed one are worlds of one batched simulator (worlds are
+independent), and AD reads the gradient of world 0's loss only.
+
+rel_err = |ad - fd| / max(|fd|, floor_rel * max|dL/da|); grad_growth = max_t |dL/da_t| / |dL/da_{H-1}|;
+grad_growth_vs_free divides it by the contact-free row's at the same H (its growth is the lever arm of
+early actions on later positions, ~H^2 for this loss, not an instability).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import torch
+
+from .bench_setup import bench_task, load_task_scene
+
+__all__ = ["GOAL_ANGLE", "NOISE", "claw_loss_rollout", "grad_row", "run_grad"]
+
+log = logging.getLogger(__name__)
+
+GOAL_ANGLE = math.pi / 4  # within screw_claw's goal range
+NOISE = 0.2  # amplitude of the uniform action noise
+
+
+def claw_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float):
+    """Roll ``actions`` [H, W, nu] out from ``q0`` [W, nq]; returns (loss [W], contact_force [H, W])."""
+    from ..sim import Control
+
+    opts = dict(dtype=sim.dtype, device=sim.torch_device)
+    gear = torch.as_tensor(sim.scene.actuator_gear, **opts)
+    centre = torch.as_tensor(sim.scene.object_base_pos, **opts)
+    zero = torch.zeros(q0.shape[0], sim.nu, **opts)
+    params = sim.default_params()
+    q, qd = q0, torch.zeros(q0.shape[0], sim.nv, **opts)
+    running, forces = 0.0, []
+    for a in actions:
+        out = sim.step(q, qd, Control(a * gear, zero, zero, zero), params)
+        q, qd = out.joint_q, out.joint_qd
+        angle_err = (q[:, sim.nu] - goal) ** 2
+        running = running + angle_err + ((out.fingertips - centre) ** 2).sum((-1, -2))
+        forces.append(out.contact_force.detach())
+    return running / len(actions) + angle_err, torch.stack(forces)
+
+
+def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: int, floor_rel: float,
+             generator: torch.Generator, device: str = "cpu") -> dict:
+    """One row of the gradient benchmark (see the module docstring)."""
+    from ..sim import Simulator
+
+    nu = scene.num_hand_dofs
+    k = min(num_entries, horizon * nu)
+    entries = torch.randperm(horizon * nu, generator=generator)[:k]
+    sim = Simulator(scene, 1 + 2 * k, device=device, dtype=torch.float64)
+    opts = dict(dtype=torch.float64, device=sim.torch_device)
+    base = torch.tensor(task.squeeze_action if contact else (0.0,) * nu, dtype=torch.float64)
+    base = base + NOISE * (2 * torch.rand(horizon, nu, generator=generator, dtype=torch.float64) - 1)
+    delta = torch.zeros(horizon, 1 + 2 * k, nu, dtype=torch.float64)
+    t_idx, j_idx, w = entries // nu, entries % nu, torch.arange(k)
+    delta[t_idx, 1 + 2 * w, j_idx] = eps
+    delta[t_idx, 2 + 2 * w, j_idx] = -eps
+    actions = (base[:, None, :] + delta).to(**opts).requires_grad_(True)
+    q0 = torch.tensor(task.touch_q if contact else task.free_q, **opts).expand(1 + 2 * k, sim.nq).contiguous()
+
+    loss, forces = claw_loss_rollout(sim, q0, actions, GOAL_ANGLE)
+    loss[0].backward()
+    ad_full = actions.grad[:, 0].cpu()  # [H, nu]
+    loss = loss.detach().cpu()
+    fd = (loss[1::2] - loss[2::2]) / (2 * eps)
+    ad = ad_full[t_idx, j_idx]
+    floor = floor_rel * ad_full.abs().max().item()
+    rel = (ad - fd).abs() / fd.abs().clamp_min(floor if floor > 0 else torch.finfo(torch.float64).tiny)
+    norms = ad_full.norm(dim=1)
+    contact_fraction = (forces[:, 0] > 0).double().mean().item()
+    if contact != (contact_fraction > 0):
+        log.warning("H=%d contact=%s: contact force > 0 on %.0f%% of the steps", horizon, contact,
+                    100 * contact_fraction)
+    return {
+        "horizon": horizon,
+        "contact": contact,
+        "median_rel_err": rel.median().item(),
+        "max_rel_err": rel.max().item(),
+        "grad_growth": (norms.max() / norms[-1]).item(),
+        "contact_fraction": contact_fraction,
+        "loss": loss[0].item(),
+        "grad_norm": ad_full.norm().item(),
+    }
+
+
+def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, num_entries: int = 16,
+             floor_rel: float = 1e-3, seed: int = 0, device: str = "cpu") -> dict:
+    """All rows; returns the result dict printed by ``dexmots-bench grad``."""
+    setup = bench_task(task)
+    scene, _ = load_task_scene(task)
+    generator = torch.Generator().manual_seed(seed)
+    rows = []
+    log.info("grad: the first row compiles the float64 kernels when not cached")
+    for horizon in horizons:
+        for contact in (True, False):
+            rows.append(grad_row(scene, setup, horizon, contact, eps, num_entries, floor_rel, generator, device))
+            log.info("grad: %s", rows[-1])
+        # growth of a free (contact-less) rollout is the baseline: a position loss on a second-order system
+        # already weighs early actions ~H^2 more than the last one
+        free = rows[-1]["grad_growth"]
+        for row in rows[-2:]:
+            row["grad_growth_vs_free"] = row["grad_growth"] / free
+    return {"task": task, "precision": "float64", "eps": eps, "floor_rel": floor_rel, "num_entries": num_entries,
+            "seed": seed, "loss_definition": "mean_t[(theta_t-theta*)^2 + sum_f |tip_f,t - object|^2] + (theta_H-theta*)^2",
+            "goal_angle": GOAL_ANGLE, "rows": rows}

@@ -1,0 +1,152 @@
+"""Throughput: env-steps/s of ``Simulator.step`` (forward, forward+backward) against MuJoCo on one scene.
+
+Protocol, identical for both simulators: every world starts from the task's open pose with the closing
+action applied, is stepped ``settle_steps`` env steps until the fingers touch the object, and the timed
+work is repeated chunks of ``chunk_steps`` env steps restarted from that contact state (so the whole
+measured window is in contact; the fraction of steps with contact is measured and reported). One env
+step is ``substeps`` physics steps of the MJCF's timestep.
+
+* ``fwd``: ``Simulator.step`` with no input requiring grad (no tape).
+* ``fwdbwd``: each step's ``joint_q`` requires grad; step, then backward of the sum of all outputs.
+* ``mujoco``: ``mujoco.rollout.Rollout`` over N copies of the same ``MjModel`` (CPU, one thread per core,
+  the calling thread alone for one world), ``nstep = substeps * chunk_steps``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import numpy as np
+import torch
+
+from .bench_setup import bench_task, device_name, load_task_scene, measure_rate
+
+__all__ = ["SimBench", "MujocoBench", "run_throughput"]
+
+log = logging.getLogger(__name__)
+
+
+class SimBench:
+    """Our simulator with ``num_envs`` worlds, settled into contact, ready to time."""
+
+    def __init__(self, scene, task, num_envs: int, device: str, substeps: int, settle_steps: int,
+                 chunk_steps: int):
+        from ..sim import Control, Simulator
+
+        self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps)
+        self.chunk_steps = chunk_steps
+        opts = dict(dtype=sim.dtype, device=sim.torch_device)
+        gear = torch.as_tensor(scene.actuator_gear, **opts)
+        tau = (torch.tensor(task.close_action, **opts) * gear).expand(num_envs, sim.nu).contiguous()
+        zero = torch.zeros_like(tau)
+        self.control, self.params = Control(tau, zero, zero, zero), sim.default_params()
+        q = torch.tensor(task.open_q, **opts).expand(num_envs, sim.nq).contiguous()
+        qd = torch.zeros(num_envs, sim.nv, **opts)
+        for _ in range(settle_steps):  # the first step compiles the kernels (cached on disk afterwards)
+            out = sim.step(q, qd, self.control, self.params)
+            q, qd = out.joint_q, out.joint_qd
+        self.q0, self.qd0 = q, qd
+
+    def contact_fraction(self) -> float:
+        """Fraction of (world, step) pairs in one chunk with a positive contact force."""
+        q, qd, touching = self.q0, self.qd0, 0.0
+        for _ in range(self.chunk_steps):
+            out = self.sim.step(q, qd, self.control, self.params)
+            q, qd = out.joint_q, out.joint_qd
+            touching += (out.contact_force > 0).double().mean().item()
+        return touching / self.chunk_steps
+
+    def forward_chunk(self) -> int:
+        q, qd = self.q0, self.qd0
+        for _ in range(self.chunk_steps):
+            out = self.sim.step(q, qd, self.control, self.params)
+            q, qd = out.joint_q, out.joint_qd
+        return self.chunk_steps * self.sim.num_worlds
+
+    def forward_backward_chunk(self) -> int:
+        q, qd = self.q0, self.qd0
+        for _ in range(self.chunk_steps):
+            q = q.detach().requires_grad_(True)
+            out = self.sim.step(q, qd, self.control, self.params)
+            sum(t.sum() for t in out).backward()
+            q, qd = out.joint_q.detach(), out.joint_qd.detach()
+        return self.chunk_steps * self.sim.num_worlds
+
+
+class MujocoBench:
+    """MuJoCo rolling out ``num_envs`` copies of the scene from the same contact state, in threads."""
+
+    def __init__(self, path, task, num_envs: int, timestep: float, substeps: int, settle_steps: int,
+                 chunk_steps: int):
+        import mujoco
+        from mujoco import rollout
+
+        self.mujoco = mujoco
+        self.model = m = mujoco.MjModel.from_xml_path(str(path))
+        m.opt.timestep = timestep
+        self.substeps, self.chunk_steps, self.num_envs = substeps, chunk_steps, num_envs
+        d = mujoco.MjData(m)
+        d.qpos[: len(task.open_q)] = task.open_q
+        d.ctrl[:] = task.close_action
+        mujoco.mj_step(m, d, nstep=settle_steps * substeps)
+        self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state = np.empty(mujoco.mj_stateSize(m, self.spec))
+        mujoco.mj_getState(m, d, state, self.spec)
+        nstep = chunk_steps * substeps
+        nthread = min(os.cpu_count() or 1, num_envs)
+        self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        self.models = [m] * num_envs
+        self.datas = [mujoco.MjData(m) for _ in range(max(nthread, 1))]
+        self.init = np.tile(state, (num_envs, 1))
+        self.ctrl = np.tile(np.asarray(task.close_action, dtype=np.float64), (num_envs, nstep, 1))
+        self.state_out = np.empty((num_envs, nstep, state.size))
+        self.sensor_out = np.empty((num_envs, nstep, m.nsensordata))
+
+    def contact_fraction(self) -> float:
+        """Fraction of physics steps of one chunk (from the settled state) with ``ncon > 0``."""
+        mujoco, d = self.mujoco, self.mujoco.MjData(self.model)
+        state = self.init[0].copy()
+        mujoco.mj_setState(self.model, d, state, self.spec)
+        d.ctrl[:] = self.ctrl[0, 0]
+        touching = 0
+        for _ in range(self.chunk_steps * self.substeps):
+            mujoco.mj_step(self.model, d)
+            touching += d.ncon > 0
+        return touching / (self.chunk_steps * self.substeps)
+
+    def chunk(self) -> int:
+        self.pool.rollout(self.models, self.datas, self.init, self.ctrl, skip_checks=True,
+                          nstep=self.chunk_steps * self.substeps, state=self.state_out, sensordata=self.sensor_out)
+        return self.chunk_steps * self.num_envs
+
+    def close(self) -> None:
+        self.pool.close()
+
+
+def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: str = "cpu", substeps: int = 16,
+                   min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16) -> dict:
+    """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``."""
+    setup = bench_task(task)
+    scene, path = load_task_scene(task)
+    sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
+    rows = []
+    for n in num_envs:
+        log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
+        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps)
+        mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps)
+        row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
+               "mujoco_contact_fraction": mj.contact_fraction()}
+        for name, fn in (("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk), ("mujoco", mj.chunk)):
+            fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
+            row[f"{name}_steps_per_s"] = measure_rate(fn, min_time, sync)
+            log.info("num_envs=%d %s: %.0f env-steps/s", n, name, row[f"{name}_steps_per_s"])
+        mj.close()
+        if row["contact_fraction"] == 0 or row["mujoco_contact_fraction"] == 0:
+            log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %.2f)", n,
+                        row["contact_fraction"], row["mujoco_contact_fraction"])
+        row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
+        rows.append({k: row[k] for k in ("num_envs", "fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s",
+                                         "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction")})
+    return {"task": task, "device": device_name(device), "dt": float(ours.sim.sub_dt), "substeps": substeps,
+            "rows": rows}
