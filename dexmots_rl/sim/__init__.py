@@ -11,6 +11,8 @@ import os
 import warp as wp
 
 wp.config.quiet = True
+# module-load messages go to stdout at INFO level; keep stdout clean for JSON-printing commands
+wp.config.log_level = wp.LOG_WARNING
 # unrolled loops keep warp's adjoints exact; our kernels nest short loops over fingers/links/points
 wp.config.max_unroll = max(wp.config.max_unroll, 64)
 wp.init()
