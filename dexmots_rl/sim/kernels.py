@@ -152,6 +152,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
+        # w: the row of q/qd holding this world's state
         """Object pose (origin, rotation), velocity of the origin and angular velocity, world frame."""
         if wp.static(OBJ_HINGE):
             th = q[w, F * J]
@@ -235,6 +236,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         m: Model,
         f: int,
         w: int,
+        r: int,
+        ro: int,
         q: wp.array2d(dtype=dtype),
         qd: wp.array2d(dtype=dtype),
         tau: wp.array2d(dtype=dtype),
@@ -246,10 +249,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo: vec3,
         vo: vec3,
         wo: vec3,
-        q_out: wp.array2d(dtype=dtype),
-        qd_out: wp.array2d(dtype=dtype),
     ):
-        """Advance finger f of world w by one substep; returns the contact wrench it puts on the object
+        """Advance finger f of world w (state row r of q/qd, written to row ro) by one substep; returns the contact wrench it puts on the object
         (force, torque about xo) and its summed normal force. A function rather than inline code keeps
         each compiled frame small: warp value-initialises every local of a frame on entry."""
         f_obj = vec3()
@@ -268,19 +269,19 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         gen = vecJ()  # contact generalized forces
         qdf = vecJ()
         for k in range(J):
-            qdf[k] = qd[w, f * J + k]
+            qdf[k] = qd[r, f * J + k]
         for k in range(J):
             i = f * J + k
             jt = m.jtype[i]
             x = x + R * m.off_pos[i]
             R = R * m.off_rot[i]
             a = R * m.axis[i]
-            qk = q[w, i]
-            qdk = qd[w, i]
+            qk = q[r, i]
+            qdk = qd[r, i]
             if jt != HINGE:
                 x = x + a * qk
-            r = x - o_prev
-            acc = acc + wp.cross(al, r) + wp.cross(om, wp.cross(om, r))
+            lever = x - o_prev
+            acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
             if jt == HINGE:
                 R = R * axis_angle(m.axis[i], qk)
                 al = al + wp.cross(om, a * qdk)
@@ -310,8 +311,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         diag = matJ()
         for k in range(J):
             i = f * J + k
-            qk = q[w, i]
-            qdk = qd[w, i]
+            qk = q[r, i]
+            qdk = qd[r, i]
             damp = m.damping[i] + kd[w, i]
             diag[k, k] = m.armature[i] + dt * damp + dt * dt * kp[w, i]
             lim = m.limit_ke[i] * (
@@ -327,9 +328,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             qdd = wp.inverse(M + diag) * rhs
         for k in range(J):
             i = f * J + k
-            v_new = qd[w, i] + dt * qdd[k]
-            qd_out[w, i] = v_new
-            q_out[w, i] = q[w, i] + dt * v_new
+            v_new = qd[r, i] + dt * qdd[k]
+            qd[ro, i] = v_new
+            q[ro, i] = q[r, i] + dt * v_new
         return f_obj, t_obj, cforce
 
     @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
@@ -342,25 +343,29 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         kp: wp.array2d(dtype=dtype),
         kd: wp.array2d(dtype=dtype),
         params: wp.array2d(dtype=dtype),
-        wrench_in: wp.array2d(dtype=dtype),
-        cforce_in: wp.array(dtype=dtype),
+        wrench: wp.array2d(dtype=dtype),
+        cforce: wp.array(dtype=dtype),
+        w0: int,
+        in_base: int,
+        out_base: int,
         dt: dtype,
         inv_substeps: dtype,
-        q_out: wp.array2d(dtype=dtype),
-        qd_out: wp.array2d(dtype=dtype),
-        wrench_out: wp.array2d(dtype=dtype),
-        cforce_out: wp.array(dtype=dtype),
     ):
-        w = wp.tid()
-        xo, Ro, vo, wo = object_frame(m, q, qd, w)
+        """One substep of worlds w0 + tid. q, qd, wrench, cforce hold a whole trajectory: the state of
+        world w is read from row in_base + w and written to row out_base + w (every row written once,
+        so warp's adjoint stays exact and one set of arrays serves all substeps of an env step)."""
+        w = w0 + wp.tid()
+        r = in_base + w
+        ro = out_base + w
+        xo, Ro, vo, wo = object_frame(m, q, qd, r)
         f_obj = vec3()
         t_obj = vec3()  # about the object origin xo
-        cforce = dtype(0.0)
+        c_sum = dtype(0.0)
         for f in range(F):
-            ff, ft, fc = finger_step(m, f, w, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo, q_out, qd_out)
+            ff, ft, fc = finger_step(m, f, w, r, ro, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo)
             f_obj = f_obj + ff
             t_obj = t_obj + ft
-            cforce = cforce + fc
+            c_sum = c_sum + fc
         o = F * J
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
@@ -369,32 +374,32 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             arm = wp.cross(a, cw - xo)
             inertia = wp.dot(a, Iw * a) + m.obj_mass * wp.dot(arm, arm) + m.obj_armature
             damp = params[w, 0]
-            th_d = qd[w, o]
+            th_d = qd[r, o]
             torque = wp.dot(a, t_obj + wp.cross(cw - xo, m.obj_mass * m.gravity))
             torque = torque - damp * th_d - params[w, 1] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
             v_new = th_d + dt * torque / (inertia + dt * damp)
-            qd_out[w, o] = v_new
-            q_out[w, o] = q[w, o] + dt * v_new
+            qd[ro, o] = v_new
+            q[ro, o] = q[r, o] + dt * v_new
         else:
             # free body: origin at the centre of mass, velocities in the world frame
             Iw = Ro * m.obj_inertia * wp.transpose(Ro)
             v_new = vo + dt * (f_obj / m.obj_mass + m.gravity)
             w_new = wo + dt * (wp.inverse(Iw) * (t_obj - wp.cross(wo, Iw * wo)))
             x_new = xo + dt * v_new
-            rq = quat(q[w, o + 4], q[w, o + 5], q[w, o + 6], q[w, o + 3])
+            rq = quat(q[r, o + 4], q[r, o + 5], q[r, o + 6], q[r, o + 3])
             rq = wp.normalize(rq + quat(w_new[0], w_new[1], w_new[2], dtype(0.0)) * rq * (dtype(0.5) * dt))
             for c in range(3):
-                q_out[w, o + c] = x_new[c]
-                qd_out[w, o + c] = v_new[c]
-                qd_out[w, o + 3 + c] = w_new[c]
-            q_out[w, o + 3] = rq[3]
-            q_out[w, o + 4] = rq[0]
-            q_out[w, o + 5] = rq[1]
-            q_out[w, o + 6] = rq[2]
+                q[ro, o + c] = x_new[c]
+                qd[ro, o + c] = v_new[c]
+                qd[ro, o + 3 + c] = w_new[c]
+            q[ro, o + 3] = rq[3]
+            q[ro, o + 4] = rq[0]
+            q[ro, o + 5] = rq[1]
+            q[ro, o + 6] = rq[2]
         for c in range(3):
-            wrench_out[w, c] = wrench_in[w, c] + inv_substeps * f_obj[c]
-            wrench_out[w, 3 + c] = wrench_in[w, 3 + c] + inv_substeps * t_obj[c]
-        cforce_out[w] = cforce_in[w] + inv_substeps * cforce
+            wrench[ro, c] = wrench[r, c] + inv_substeps * f_obj[c]
+            wrench[ro, 3 + c] = wrench[r, 3 + c] + inv_substeps * t_obj[c]
+        cforce[ro] = cforce[r] + inv_substeps * c_sum
 
     @wp.func
     def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
@@ -414,9 +419,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         qd: wp.array2d(dtype=dtype),
         body_pose: wp.array2d(dtype=dtype),
         tips: wp.array2d(dtype=dtype),
+        w0: int,
     ):
         """Poses (pos + wxyz quat) of every hand link and the object, and fingertip positions."""
-        w = wp.tid()
+        w = w0 + wp.tid()
         for f in range(F):
             R = m.base_rot[f]
             x = m.base_pos[f]

@@ -10,19 +10,17 @@ TensorDict), so a step is a pure function and SHAC can chain gradients through m
 from __future__ import annotations
 
 import dataclasses
-import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
 import warp as wp
 
 from .kernels import MAX_PLANES, build_kernels
-from .model import OBJECT_HINGE, ContactParams, SceneModel
+from .model import ContactParams, SceneModel
+from .stepper import Trajectory, _run_blocks
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
 
-MIN_WORLDS_PER_THREAD = 32  # below this a second CPU thread costs more than it saves
 LIMIT_FREQUENCY = 60.0  # rad/s: joint-limit springs are as stiff as a 60 rad/s oscillator on the joint's inertia
 
 
@@ -115,7 +113,7 @@ class Simulator:
             scene.object_shape,
         )
         self.model = self._make_model()
-        self.launches_per_step = substeps + 1
+        self.launches_per_step = substeps + 1  # per block of worlds (one block per CPU core)
 
     # ----------------------------------------------------------------------------------------- set-up
     def _make_model(self):
@@ -183,136 +181,52 @@ class Simulator:
         pose = self._zeros(joint_q.shape[0], self.num_bodies * 7)
         tips = self._zeros(joint_q.shape[0], self.scene.num_fingers * 3)
         wp.launch(self.kernels.observe, dim=joint_q.shape[0], inputs=[self.model, q, qd],
-                  outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
+                  outputs=[wp.from_torch(pose), wp.from_torch(tips), 0], device=self.device)
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
-    def _run(self, inputs: list[torch.Tensor], record: bool):
-        """Launch all substeps; returns output tensors, and the tape + warp arrays when recording."""
-        if not record and inputs[0].shape[0] == self.num_worlds:
-            return self._fast_plan().run(inputs), None
-        n = inputs[0].shape[0]
-        wrap = [wp.from_torch(t.detach().to(self.dtype).contiguous(), requires_grad=record) for t in inputs]
-        q, qd, tau, q_target, kp, kd, params = wrap
-        outs = [self._zeros(n, self.nq), self._zeros(n, self.nv), self._zeros(n, 6), self._zeros(n),
-                self._zeros(n, self.num_bodies * 7), self._zeros(n, self.scene.num_fingers * 3)]
-        out_arrays = [wp.from_torch(t, requires_grad=record) for t in outs]
-        wrench = wp.from_torch(self._zeros(n, 6), requires_grad=record)
-        cforce = wp.from_torch(self._zeros(n), requires_grad=record)
-        tape = wp.Tape() if record else None
-        inv = 1.0 / self.substeps
-        with tape if record else _nullcontext():
-            for s in range(self.substeps):
-                last = s == self.substeps - 1
-                if last:
-                    nxt = out_arrays[:4]
-                else:
-                    nxt = [wp.from_torch(self._zeros(*t.shape), requires_grad=record) for t in outs[:4]]
-                wp.launch(self.kernels.substep, dim=n, device=self.device,
-                          inputs=[self.model, q, qd, tau, q_target, kp, kd, params, wrench, cforce,
-                                  self.sub_dt, inv], outputs=nxt)
-                q, qd, wrench, cforce = nxt
-            wp.launch(self.kernels.observe, dim=n, inputs=[self.model, q, qd], outputs=out_arrays[4:],
-                      device=self.device)
-        return outs, (tape, wrap, out_arrays) if record else None
+    def adjoint_model(self):
+        """Adjoint container for the (constant) model struct: zero arrays the reverse pass may write."""
+        if getattr(self, "_adj_model", None) is None:
+            adj = self.kernels.Model()
+            for name, value in vars(self.model).items():
+                if isinstance(value, wp.array):
+                    setattr(adj, name, wp.zeros_like(value))
+            self._adj_model = adj
+        return self._adj_model
 
-
-    def _fast_plan(self) -> "_ReplayPlan":
-        if getattr(self, "_plan", None) is None:
-            self._plan = _ReplayPlan(self)
-        return self._plan
-
-
-class _ReplayPlan:
-    """Gradient-free stepping with persistent buffers and pre-recorded launches.
-
-    Without a tape nothing needs fresh arrays, so every launch of an env step is recorded once
-    (``record_cmd``) over fixed buffers and replayed, which cuts the per-launch Python cost ~5x. The
-    worlds are split into one block per CPU core, each replayed from its own thread (warp releases the
-    GIL during a launch), so a CPU step uses every core. Outputs are cloned: callers never alias buffers.
-    """
-
-    def __init__(self, sim: Simulator):
-        n, z = sim.num_worlds, sim._zeros
-        nb, nf = sim.num_bodies * 7, sim.scene.num_fingers * 3
-        self.inputs = [z(n, sim.nq), z(n, sim.nv), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2)]
-        ping = [z(n, sim.nq), z(n, sim.nv), z(n, 6), z(n)]
-        pong = [z(n, sim.nq), z(n, sim.nv), z(n, 6), z(n)]
-        acc0 = [z(n, 6), z(n)]
-        self.obs = [z(n, nb), z(n, nf)]
-        threads = (os.cpu_count() or 1) if sim.device.is_cpu else 1
-        blocks = max(1, min(threads, n // MIN_WORLDS_PER_THREAD))
-        bounds = [round(i * n / blocks) for i in range(blocks + 1)]
-        self.blocks = []
-        inv = 1.0 / sim.substeps
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
-            def view(ts):
-                return [wp.from_torch(t[lo:hi]) for t in ts]
-
-            ins, a, b, acc, obs = view(self.inputs), view(ping), view(pong), view(acc0), view(self.obs)
-            cmds, state = [], ins[:2] + acc
-            for s in range(sim.substeps):
-                nxt = a if s % 2 == 0 else b
-                cmds.append(wp.launch(sim.kernels.substep, dim=hi - lo, device=sim.device, record_cmd=True,
-                                      inputs=[sim.model, state[0], state[1], *ins[2:], state[2], state[3],
-                                              sim.sub_dt, inv], outputs=nxt))
-                state = nxt
-            cmds.append(wp.launch(sim.kernels.observe, dim=hi - lo, device=sim.device, record_cmd=True,
-                                  inputs=[sim.model, state[0], state[1]], outputs=obs))
-            self.blocks.append(cmds)
-        self.final = ping if sim.substeps % 2 == 1 else pong
-        self.pool = ThreadPoolExecutor(len(self.blocks)) if len(self.blocks) > 1 else None
-
-    @staticmethod
-    def _replay(cmds):
-        for cmd in cmds:
-            cmd.launch()
-
-    def run(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
-        with torch.no_grad():
-            for buf, t in zip(self.inputs, inputs):
-                buf.copy_(t)
-        if self.pool is None:
-            self._replay(self.blocks[0])
-        else:
-            list(self.pool.map(self._replay, self.blocks))
-        return [t.clone() for t in self.final] + [t.clone() for t in self.obs]
-
-
-class _nullcontext:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
+    def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
+        """Gradient-free step: persistent buffers and launches recorded once, replayed per block."""
+        if getattr(self, "_fast", None) is None:
+            traj = Trajectory(self, requires_grad=False)
+            self._fast = (traj, [traj.launches(lo, hi, record=True) for lo, hi in traj.blocks])
+        traj, cmds = self._fast
+        traj.load(inputs[0], inputs[1], inputs[2:])
+        replay = {lo: block for (lo, _), block in zip(traj.blocks, cmds)}
+        _run_blocks(lambda lo, hi: [cmd.launch() for cmd in replay[lo]], traj.blocks)
+        return traj.outputs()
 
 
 class SimStep(torch.autograd.Function):
-    """One env step as an autograd Function: forward records a ``wp.Tape`` only when an input needs a
-    gradient; backward replays it with the incoming adjoints. Inputs: ``sim, joint_q, joint_qd, tau,
+    """One env step as an autograd Function: when an input needs a gradient, forward keeps the step's
+    substep trajectory and backward runs the kernels' adjoints over it in reverse (no tape, no
+    trajectory and no gradient buffers otherwise). Inputs: ``sim, joint_q, joint_qd, tau,
     q_target, kp, kd, params``; outputs as :class:`StepOutput`."""
 
     @staticmethod
     def forward(ctx, sim: Simulator, *inputs):
-        record = any(ctx.needs_input_grad[1:])
-        outs, taped = sim._run(list(inputs), record)
-        ctx.sim, ctx.taped = sim, taped
-        outs[4] = outs[4].view(-1, sim.num_bodies, 7)
-        outs[5] = outs[5].view(-1, sim.scene.num_fingers, 3)
-        return tuple(outs)
+        inputs = [t.detach().to(sim.dtype) for t in inputs]
+        ctx.sim = sim
+        if not any(ctx.needs_input_grad[1:]):
+            ctx.traj = None
+            return tuple(sim._replay(inputs))
+        traj = Trajectory(sim, requires_grad=True)
+        traj.load(inputs[0], inputs[1], inputs[2:])
+        traj.forward()
+        ctx.traj = traj
+        return tuple(traj.outputs())
 
     @staticmethod
     def backward(ctx, *grad_outputs):
-        tape, in_arrays, out_arrays = ctx.taped
-        sim = ctx.sim
-        grads = {}
-        for arr, g in zip(out_arrays, grad_outputs):
-            g = torch.zeros(arr.shape, dtype=sim.dtype, device=sim.torch_device) if g is None else g
-            grads[arr] = wp.from_torch(g.reshape(arr.shape).to(sim.dtype).contiguous())
-        tape.backward(grads=grads)
-        result = [None]
-        for arr, needs in zip(in_arrays, ctx.needs_input_grad[1:]):
-            # a world that blew up must not poison the others' gradients (the env resets it)
-            result.append(torch.nan_to_num(wp.to_torch(arr.grad), nan=0.0, posinf=0.0, neginf=0.0) if needs else None)
-        tape.reset()
-        ctx.taped = None
-        return tuple(result)
+        grads = ctx.traj.backward(grad_outputs)
+        ctx.traj = None
+        return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])
