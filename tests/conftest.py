@@ -1,0 +1,52 @@
+"""Shared fixtures for the dexmots_rl test suite.
+
+Warp compiles one kernel module per scene structure and float type (~1-2 min each on 2 CPU cores, then
+cached on disk), so the whole suite deliberately uses only three specialisations:
+
+* the claw scene in float32 (the envs' default dtype),
+* the claw scene in float64 (gradient checks and dynamics sanity),
+* the 3D oracle scene ``tests/assets/chain3d.xml`` in float64 (dynamics against MuJoCo).
+
+``Simulator`` objects are cheap once their kernels are loaded (``build_kernels`` is cached per process), so
+tests build the number of worlds they need from the session-scoped scenes below.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from dexmots_rl.sim import Simulator, load_scene
+from simutil import CHAIN3D, CLAW
+
+
+@pytest.fixture(scope="session")
+def claw_scene():
+    return load_scene(CLAW)
+
+
+@pytest.fixture(scope="session")
+def chain_scene():
+    return load_scene(CHAIN3D)
+
+
+@pytest.fixture(scope="session")
+def make_claw_sim(claw_scene):
+    """Factory ``make_claw_sim(num_worlds, dtype=torch.float64, **kwargs)``, reusing simulators."""
+    cache: dict = {}
+
+    def make(num_worlds: int, dtype: torch.dtype = torch.float64, **kwargs) -> Simulator:
+        key = (num_worlds, dtype, tuple(sorted(kwargs.items())))
+        if key not in cache:
+            cache[key] = Simulator(claw_scene, num_worlds=num_worlds, dtype=dtype, **kwargs)
+        return cache[key]
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def chain_sim(chain_scene):
+    """The oracle scene with one tiny float64 substep, so (qd_out - qd) / dt is the joint acceleration.
+
+    7 worlds: one without torque plus one per hand dof with a unit torque (columns of M^-1)."""
+    return Simulator(chain_scene, num_worlds=7, dtype=torch.float64, substeps=1, dt=1e-7)
