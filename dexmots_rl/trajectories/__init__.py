@@ -1,0 +1,45 @@
+"""Object-centric task plans: pose + wrench trajectories, their file format, and finite-difference wrenches.
+
+Example:
+    >>> import torch
+    >>> from dexmots_rl.trajectories import PoseWrenchTrajectory
+    >>> q = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
+    >>> PoseWrenchTrajectory(torch.zeros(2, 3), q, torch.zeros(2, 6), dt=0.1).horizon
+    2
+"""
+
+from __future__ import annotations
+
+from .finite_differences import (
+    angular_velocities,
+    load_pose_demo,
+    quat_conjugate,
+    quat_log,
+    quat_multiply,
+    quat_to_matrix,
+    wrenches_from_poses,
+)
+from .trajectory import (
+    FIELDS,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    PoseWrenchTrajectory,
+    TrajectoryFormatError,
+    validate_trajectory_fields,
+)
+
+__all__ = [
+    "FIELDS",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "PoseWrenchTrajectory",
+    "TrajectoryFormatError",
+    "angular_velocities",
+    "load_pose_demo",
+    "quat_conjugate",
+    "quat_log",
+    "quat_multiply",
+    "quat_to_matrix",
+    "validate_trajectory_fields",
+    "wrenches_from_poses",
+]
