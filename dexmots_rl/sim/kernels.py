@@ -289,9 +289,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             else:
                 acc = acc + dtype(2.0) * wp.cross(om, a * qdk)
             o_prev = x
-            for c in range(3):
-                O[k, c] = x[c]
-                A[k, c] = a[c]
+            # O and A were already read for earlier links: overwriting their components would break
+            # the adjoint, so add the new row as a whole matrix instead
+            ek = vecJ()
+            ek[k] = dtype(1.0)
+            O = O + wp.outer(ek, x)
+            A = A + wp.outer(ek, a)
             # link inertia: mass matrix and bias-force contributions through the Jacobian
             cw = x + R * m.com[i]
             Iw = R * m.inertia[i] * wp.transpose(R)

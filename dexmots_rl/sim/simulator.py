@@ -227,6 +227,9 @@ class SimStep(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, *grad_outputs):
+        if ctx.traj is None:
+            raise RuntimeError("SimStep supports one backward pass per forward (retain_graph / double "
+                               "backward is not supported): step again to differentiate again")
         grads = ctx.traj.backward(grad_outputs)
         ctx.traj = None
         return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])
