@@ -210,28 +210,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return fc, cp, fn, gen
 
     @wp.func
-    def link_contacts(m: Model, x: vec3, R: mat33, i: int, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                      A: matJ3, O: matJ3, qdf: vecJ):
-        """Contact of link i's sample spheres with the object: force and torque (about xo) on the object,
-        summed normal force, generalized force on the finger. Far spheres cost one distance test."""
-        f_obj = vec3()
-        t_obj = vec3()
-        cforce = dtype(0.0)
-        gen = vecJ()
-        reach = m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta
-        for s in range(P):
-            pi = i * P + s
-            rad = m.point_radius[pi]
-            p = x + R * m.point_pos[pi]
-            if rad > dtype(0.0) and wp.length(wp.transpose(Ro) * (p - xo)) < reach + rad:
-                fc, cp, fn, gen_s = point_contact(m, p, rad, Ro, xo, vo, wo, base, A, O, qdf)
-                cforce = cforce + fn
-                f_obj = f_obj - fc
-                t_obj = t_obj - wp.cross(cp - xo, fc)
-                gen = gen + gen_s
-        return f_obj, t_obj, cforce, gen
-
-    @wp.func
     def finger_step(
         m: Model,
         f: int,
@@ -256,6 +234,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         f_obj = vec3()
         t_obj = vec3()
         cforce = dtype(0.0)
+        reach = m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta
         R = m.base_rot[f]
         x = m.base_pos[f]
         om = vec3()  # angular velocity of the parent link
@@ -304,11 +283,18 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             Jw = angular_jacobian(m.jtype, f * J, A)
             M = M + m.mass[i] * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
             bias = bias + Jv * (m.mass[i] * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
-            lf, lt, lc, lg = link_contacts(m, x, R, i, Ro, xo, vo, wo, f * J, A, O, qdf)
-            f_obj = f_obj + lf
-            t_obj = t_obj + lt
-            cforce = cforce + lc
-            gen = gen + lg
+            # contact of this link's sample spheres: a distance test each, the work only near the object
+            # (kept one call deep: the adjoint replays every nesting level of functions)
+            for sp in range(P):
+                pi = i * P + sp
+                rad = m.point_radius[pi]
+                p = x + R * m.point_pos[pi]
+                if rad > dtype(0.0) and wp.length(wp.transpose(Ro) * (p - xo)) < reach + rad:
+                    fc, cp, fn, gen_s = point_contact(m, p, rad, Ro, xo, vo, wo, f * J, A, O, qdf)
+                    cforce = cforce + fn
+                    f_obj = f_obj - fc
+                    t_obj = t_obj - wp.cross(cp - xo, fc)
+                    gen = gen + gen_s
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
         rhs = vecJ()
         diag = matJ()
