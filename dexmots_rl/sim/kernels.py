@@ -15,16 +15,15 @@ import os
 
 import warp as wp
 
-from .model import HINGE, OBJECT_HINGE, SHAPE_CYLINDER, SHAPE_SPHERE
+from .model import HINGE, OBJECT_HINGE, SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
 
-__all__ = ["build_kernels", "MAX_PLANES"]
+__all__ = ["build_kernels"]
 
 # clang optimisation level for the CPU build: -O2 runs 2.5x faster than -O1 at the same compile time
 # (~85 s for the claw substep kernel with its adjoint, 2 cores); -O0 compiles in 14 s but runs 18x slower.
 # Override with DEXMOTS_WARP_OPT=0..3 (e.g. 0 while iterating on kernel code).
 OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "2"))
 FAST_MATH = os.environ.get("DEXMOTS_WARP_FAST_MATH", "0") == "1"
-MAX_PLANES = 32  # convex objects with more faces than this need an SDF (unrolled loop budget)
 LSE_CUTOFF = 12.0  # smooth-max terms this many smoothing lengths below the max are dropped
 CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
@@ -76,6 +75,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         obj_armature: dtype
         obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
         planes: wp.array(dtype=vec4)
+        sdf: wp.array3d(dtype=dtype)  # signed distance grid for non-convex meshes
+        sdf_origin: vec3
+        sdf_cell: dtype
         shape_size: vec3
         gravity: vec3
         # contact: stiffness, damping, sharpness, friction, slip velocity, surface smoothing
@@ -120,6 +122,41 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return vec3(dtype(0.0), dtype(0.0), dtype(0.0))
 
     @wp.func
+    def grid_sdf(m: Model, p: vec3):
+        """Trilinear signed distance and its normalised gradient from the grid; outside the grid the
+        distance to the grid box is added (the grid is padded, so this only matters far away)."""
+        g = (p - m.sdf_origin) / m.sdf_cell
+        hi = vec3(dtype(m.sdf.shape[0] - 1), dtype(m.sdf.shape[1] - 1), dtype(m.sdf.shape[2] - 1))
+        gc = vec3(wp.clamp(g[0], dtype(0.0), hi[0]), wp.clamp(g[1], dtype(0.0), hi[1]), wp.clamp(g[2], dtype(0.0), hi[2]))
+        i = wp.min(int(gc[0]), m.sdf.shape[0] - 2)
+        j = wp.min(int(gc[1]), m.sdf.shape[1] - 2)
+        k = wp.min(int(gc[2]), m.sdf.shape[2] - 2)
+        fx = gc[0] - dtype(i)
+        fy = gc[1] - dtype(j)
+        fz = gc[2] - dtype(k)
+        c000 = m.sdf[i, j, k]
+        c100 = m.sdf[i + 1, j, k]
+        c010 = m.sdf[i, j + 1, k]
+        c110 = m.sdf[i + 1, j + 1, k]
+        c001 = m.sdf[i, j, k + 1]
+        c101 = m.sdf[i + 1, j, k + 1]
+        c011 = m.sdf[i, j + 1, k + 1]
+        c111 = m.sdf[i + 1, j + 1, k + 1]
+        one = dtype(1.0)
+        c00 = c000 * (one - fx) + c100 * fx
+        c10 = c010 * (one - fx) + c110 * fx
+        c01 = c001 * (one - fx) + c101 * fx
+        c11 = c011 * (one - fx) + c111 * fx
+        c0 = c00 * (one - fy) + c10 * fy
+        c1 = c01 * (one - fy) + c11 * fy
+        d = c0 * (one - fz) + c1 * fz
+        gx = ((c100 - c000) * (one - fy) + (c110 - c010) * fy) * (one - fz) + ((c101 - c001) * (one - fy) + (c111 - c011) * fy) * fz
+        gy = (c10 - c00) * (one - fz) + (c11 - c01) * fz
+        gz = c1 - c0
+        n = vec3(gx, gy, gz) + (g - gc)  # outside the grid: point away from it
+        return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
+
+    @wp.func
     def object_sdf(m: Model, p: vec3):
         """Signed distance (smoothed at edges) and outward unit normal, object frame."""
         if wp.static(shape == SHAPE_SPHERE):
@@ -134,6 +171,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             w_z = wp.exp((s_z - hi) / m.smooth)
             n = w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
             return hi + m.smooth * wp.log(w_r + w_z), wp.normalize(n)
+        if wp.static(shape == SHAPE_SDF):
+            return grid_sdf(m, p)
         # convex polytope: log-sum-exp smooth max over face planes
         hi = dtype(-1e9)
         for k in range(K):

@@ -21,7 +21,9 @@ __all__ = ["AssetError", "SceneModel", "ContactParams", "load_scene"]
 
 HINGE, SLIDE = 0, 1
 OBJECT_HINGE, OBJECT_FREE = 0, 1
-SHAPE_CONVEX, SHAPE_SPHERE, SHAPE_CYLINDER = 0, 1, 2
+SHAPE_CONVEX, SHAPE_SPHERE, SHAPE_CYLINDER, SHAPE_SDF = 0, 1, 2, 3
+MAX_PLANES = 32  # convex objects with more faces than this (or non-convex meshes) use a signed-distance grid
+SDF_RESOLUTION = 40  # grid points along the longest padded axis
 
 
 class AssetError(ValueError):
@@ -97,6 +99,9 @@ class SceneModel:
     object_planes: np.ndarray  # [K, 4] outward normal + offset (n.p <= d inside), object frame
     object_shape_size: np.ndarray  # [2] sphere: (radius, 0); cylinder: (radius, half-height)
     object_bound: float  # radius of a sphere about the object origin enclosing its geometry
+    object_sdf: np.ndarray  # [X, Y, Z] signed distance grid (negative inside), object frame; [1,1,1] if unused
+    object_sdf_origin: np.ndarray  # [3] position of grid point (0, 0, 0)
+    object_sdf_cell: float  # grid spacing
     gravity: np.ndarray
     timestep: float
 
@@ -149,7 +154,20 @@ def _link_points(m, b: int, per_capsule: int) -> list[tuple[np.ndarray, float]]:
     return points
 
 
-def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float]:
+def _sdf_grid(mesh, pad: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Signed distance (negative inside) sampled on a regular grid around ``mesh`` (trimesh)."""
+    import trimesh
+
+    lo, hi = mesh.bounds[0] - pad, mesh.bounds[1] + pad
+    cell = float((hi - lo).max() / (SDF_RESOLUTION - 1))
+    dims = np.ceil((hi - lo) / cell).astype(int) + 1
+    axes = [lo[i] + cell * np.arange(dims[i]) for i in range(3)]
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    values = -trimesh.proximity.signed_distance(mesh, points)  # trimesh: positive inside
+    return values.reshape(*dims), lo, cell
+
+
+def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]:
     import mujoco
     import trimesh
 
@@ -160,18 +178,22 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float]:
     gtype, size = int(m.geom_type[g]), m.geom_size[g]
     rot, pos = _quat_to_mat(m.geom_quat[g]), m.geom_pos[g]
     none = np.zeros((0, 4))
+    no_sdf = (np.zeros((1, 1, 1)), np.zeros(3), 1.0)
     if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
-        return SHAPE_SPHERE, none, np.array([size[0], 0.0]), float(size[0] + np.linalg.norm(pos))
+        return SHAPE_SPHERE, none, np.array([size[0], 0.0]), float(size[0] + np.linalg.norm(pos)), no_sdf
     if gtype == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
         if np.abs(pos).max() > 1e-9 or np.abs(rot - np.eye(3)).max() > 1e-9:
             raise AssetError("object cylinder geom must sit at the object body frame")
-        return SHAPE_CYLINDER, none, np.array([size[0], size[1]]), float(np.hypot(size[0], size[1]))
+        return SHAPE_CYLINDER, none, np.array([size[0], size[1]]), float(np.hypot(size[0], size[1])), no_sdf
+    mesh = None
     if gtype == int(mujoco.mjtGeom.mjGEOM_BOX):
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
     elif gtype == int(mujoco.mjtGeom.mjGEOM_MESH):
         mid = m.geom_dataid[g]
         start, count = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
         corners = m.mesh_vert[start : start + count].astype(np.float64)
+        fstart, fcount = m.mesh_faceadr[mid], m.mesh_facenum[mid]
+        mesh = trimesh.Trimesh(corners @ rot.T + pos, m.mesh_face[fstart : fstart + fcount], process=True)
     else:
         raise AssetError(f"object geom type {int(gtype)} is not supported (box, mesh, sphere, cylinder)")
     corners = corners @ rot.T + pos
@@ -184,7 +206,13 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float]:
     origins = np.concatenate([origins, hull.triangles_center[lone]])
     offsets = np.einsum("ij,ij->i", normals, origins)
     planes = np.unique(np.round(np.concatenate([normals, offsets[:, None]], 1), 9), axis=0)
-    return SHAPE_CONVEX, planes, np.zeros(2), float(np.linalg.norm(corners, axis=1).max())
+    bound = float(np.linalg.norm(corners, axis=1).max())
+    convex = mesh is None or (mesh.is_watertight and abs(mesh.volume - hull.volume) <= 1e-3 * hull.volume)
+    if convex and len(planes) <= MAX_PLANES:
+        return SHAPE_CONVEX, planes, np.zeros(2), bound, no_sdf
+    if not mesh.is_watertight:
+        raise AssetError("object mesh is neither convex (<= 32 faces) nor watertight; cannot build its SDF")
+    return SHAPE_SDF, none, np.zeros(2), bound, _sdf_grid(mesh, pad=0.25 * float(np.ptp(mesh.bounds, 0).max()))
 
 
 def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneModel:
@@ -276,7 +304,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     parent = m.body_parentid[obj]
     base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
     base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
-    shape, planes, size, bound = _object_shape(m, obj)
+    shape, planes, size, bound, (sdf, sdf_origin, sdf_cell) = _object_shape(m, obj)
     omass, ocom, oinertia = _body_inertia(m, obj)
     odof = int(m.jnt_dofadr[oj])
 
@@ -323,6 +351,9 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         object_planes=planes,
         object_shape_size=size,
         object_bound=bound,
+        object_sdf=sdf,
+        object_sdf_origin=sdf_origin,
+        object_sdf_cell=sdf_cell,
         gravity=m.opt.gravity.copy(),
         timestep=float(m.opt.timestep),
     )

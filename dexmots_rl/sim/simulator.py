@@ -15,8 +15,8 @@ import numpy as np
 import torch
 import warp as wp
 
-from .kernels import MAX_PLANES, build_kernels
-from .model import ContactParams, SceneModel
+from .kernels import build_kernels
+from .model import MAX_PLANES, ContactParams, SceneModel
 from .stepper import Trajectory, _run_blocks
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
@@ -142,6 +142,8 @@ class Simulator:
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
+        m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
+        m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)
