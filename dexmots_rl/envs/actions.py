@@ -4,6 +4,13 @@
 * ``"position"``: PD targets spanning the joint range, ``q* = lower + (a + 1) / 2 * (upper - lower)``,
   stiffness ``kp = stiffness_frequency^2 * I0`` per joint (``I0``: joint-space inertia at q = 0) and
   critical damping ``kd = 2 sqrt(kp * I0)``; the simulator integrates both terms implicitly.
+* ``"vi"`` (variable impedance): ``2 nu`` entries. The first ``nu`` are PD targets mapped like
+  ``"position"``; the last ``nu`` choose each joint's stiffness per step, log-linearly between
+  ``kp_min = (f / 4)^2 I0`` (a = -1) and ``kp_max = (2 f)^2 I0`` (a = +1), ``f = stiffness_frequency``
+  (rad/s): ``kp = kp_min (kp_max / kp_min)^((a + 1) / 2)``, so a = 0 gives the geometric mean ``f^2 I0 / 2``.
+  The bounds put the joint's natural frequency ``sqrt(kp / I0)`` in ``[f / 4, 2 f]``; log-linear
+  spacing spends the action range evenly on each octave of that frequency instead of crowding the soft end.
+  Damping follows the same critical rule ``kd = 2 sqrt(kp I0)`` so no gain setting rings or over-damps.
 
 Actions are clamped to [-1, 1]; non-finite actions are rejected (see :func:`validate_action`).
 """
@@ -18,7 +25,7 @@ from ..sim import Control, Simulator
 
 __all__ = ["ACTION_TYPES", "ActionMap", "validate_action"]
 
-ACTION_TYPES = ("torque", "position")
+ACTION_TYPES = ("torque", "position", "vi")
 
 
 def validate_action(action: torch.Tensor, num_envs: int, action_dim: int) -> None:
@@ -35,12 +42,28 @@ def validate_action(action: torch.Tensor, num_envs: int, action_dim: int) -> Non
 
 
 class ActionMap:
-    """Turns clamped policy actions into a :class:`~dexmots_rl.sim.Control` (differentiably)."""
+    """Turns clamped policy actions into a :class:`~dexmots_rl.sim.Control` (differentiably).
+
+    ``action_dim`` is the policy action width: ``nu`` for ``"torque"``/``"position"``, ``2 nu`` for ``"vi"``.
+
+    Example:
+        >>> import torch
+        >>> from types import SimpleNamespace
+        >>> from dexmots_rl.sim import load_scene
+        >>> from dexmots_rl.assets import asset_path
+        >>> scene = load_scene(asset_path("claw_screw.xml"))
+        >>> sim = SimpleNamespace(scene=scene, num_worlds=2, nu=scene.num_hand_dofs,
+        ...                       dtype=torch.float64, torch_device=torch.device("cpu"))
+        >>> vi = ActionMap(sim, "vi")
+        >>> vi.action_dim, tuple(vi(torch.zeros(2, vi.action_dim)).kp.shape)
+        (8, (2, 4))
+    """
 
     def __init__(self, sim: Simulator, kind: str = "torque", stiffness_frequency: float = 20.0):
         if kind not in ACTION_TYPES:
             raise ValueError(f"action type {kind!r} is unknown; known: {', '.join(ACTION_TYPES)}")
-        self.kind, self.num_worlds = kind, sim.num_worlds
+        self.kind, self.num_worlds, self.nu = kind, sim.num_worlds, sim.nu
+        self.action_dim = 2 * sim.nu if kind == "vi" else sim.nu
         scene = sim.scene
 
         def t(x):
@@ -53,12 +76,35 @@ class ActionMap:
         inertia0 = t(scene.dof_inertia0)
         self.kp = stiffness_frequency**2 * inertia0
         self.kd = 2.0 * torch.sqrt(self.kp * inertia0)
+        # "vi" bounds; kd is written via sqrt(kp I0) = (f/4) 8^u I0 (u in [0, 1]), which equals the
+        # critical rule exactly but has no sqrt, so its gradient stays finite even where I0 = 0
+        self.inertia0 = inertia0
+        self.kp_min = (stiffness_frequency / 4.0) ** 2 * inertia0
+        self.kp_max = (2.0 * stiffness_frequency) ** 2 * inertia0
+        self._kd_min = 2.0 * (stiffness_frequency / 4.0) * inertia0
+        self._log_ratio = math.log(64.0)  # kp_max / kp_min = (2 f / (f / 4))^2, the same for every joint
         self._zeros = torch.zeros(sim.num_worlds, sim.nu, dtype=sim.dtype, device=sim.torch_device)
 
+    def targets(self, a: torch.Tensor) -> torch.Tensor:
+        """Joint targets spanning the joint range for actions ``a`` in [-1, 1] (-1: lower, +1: upper)."""
+        return self.lower + 0.5 * (a + 1.0) * (self.upper - self.lower)
+
+    def stiffness(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(kp, kd)`` for stiffness actions ``s`` in [-1, 1]: log-linear kp, critically damped kd."""
+        u = 0.5 * (s + 1.0)
+        kp = self.kp_min * torch.exp(self._log_ratio * u)
+        kd = self._kd_min * torch.exp(0.5 * self._log_ratio * u)
+        return kp, kd
+
     def __call__(self, action: torch.Tensor) -> Control:
+        if action.shape[-1] != self.action_dim:
+            raise ValueError(f"action has {action.shape[-1]} entries per world, the {self.kind!r} action "
+                             f"space expects {self.action_dim}")
         a = action.clamp(-1.0, 1.0)
         z = self._zeros[: a.shape[0]]
         if self.kind == "torque":
             return Control(tau=a * self.gear, q_target=z, kp=z, kd=z)
-        target = self.lower + 0.5 * (a + 1.0) * (self.upper - self.lower)
-        return Control(tau=z, q_target=target, kp=self.kp.expand_as(a), kd=self.kd.expand_as(a))
+        if self.kind == "vi":
+            kp, kd = self.stiffness(a[..., self.nu:])
+            return Control(tau=z, q_target=self.targets(a[..., : self.nu]), kp=kp, kd=kd)
+        return Control(tau=z, q_target=self.targets(a), kp=self.kp.expand_as(a), kd=self.kd.expand_as(a))
