@@ -188,3 +188,18 @@ def test_position_actions_track_targets():
     assert (err < 0.5 * err0 + 1e-3).all()
     assert float(err.max()) < 0.02
     assert float(out["hand", "qd"].abs().max()) < 0.1  # settled (critically damped PD)
+
+
+def test_variable_impedance_env_specs_and_gradients():
+    from torchrl.envs.utils import check_env_specs
+
+    from dexmots_rl.envs import make_env
+
+    env = make_env("screw_claw", num_envs=2, seed=0, action="vi")
+    assert env.action_spec.shape[-1] == 8  # 4 joint targets + 4 stiffnesses
+    check_env_specs(env)
+    td = env.reset()
+    action = torch.zeros(2, 8, requires_grad=True)
+    out = env.step(td.set("action", action))
+    (grad,) = torch.autograd.grad(out["next", "hand", "q"].sum(), action)
+    assert torch.isfinite(grad).all() and grad[:, :4].abs().sum() > 0 and grad[:, 4:].abs().sum() > 0

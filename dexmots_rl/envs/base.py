@@ -85,7 +85,7 @@ class DexEnv(EnvBase):
         obs[("info", "sim_failures")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
         obs["success"] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev)
         self.observation_spec = obs
-        self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.sim.nu), dtype=dt, device=dev)
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.actions.action_dim), dtype=dt, device=dev)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=dt, device=dev)
         self.full_done_spec = Composite(
             done=Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev),
@@ -175,7 +175,7 @@ class DexEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action")
-        validate_action(action, self.num_envs, self.sim.nu)
+        validate_action(action, self.num_envs, self.actions.action_dim)
         q = tensordict.get(("sim", "joint_q"))
         qd = tensordict.get(("sim", "joint_qd"))
         params = tensordict.get(("sim", "params"))
