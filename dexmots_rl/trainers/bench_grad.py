@@ -4,9 +4,13 @@ For each horizon H and contact case, a rollout of H env steps with ``Control.tau
 the task's touching pose (``contact=True``: squeezing action plus noise) or its open pose far from the
 object (``contact=False``: noise only) gives a scalar loss
 
-    L = 1/H * sum_t [(theta_t - theta*)^2 + sum_f |p_{f,t} - c|^2] + (theta_H - theta*)^2
+    pose loss:      L = 1/H * sum_t [(theta_t - theta*)^2 + sum_f |p_{f,t} - c|^2] + (theta_H - theta*)^2
+    velocity loss:  L = (omega_H - omega*)^2 + 0.01 * |qd_hand,H|^2
 
-(theta: object angle, theta* = ``GOAL_ANGLE``; p_f: fingertips; c: the object's origin). dL/da is
+(theta: object angle, theta* = ``GOAL_ANGLE``; p_f: fingertips; c: the object's origin; omega: object
+angular velocity, omega* = ``GOAL_SPEED``). Both are reported: a position loss weighs early actions more
+than late ones simply because a torque moves every later position (~H^2 growth without any contact),
+while a final-velocity loss has no such lever, so its grad_growth isolates amplification by the dynamics. dL/da is
 compared on a random subset of the H x nu action entries with ``(L(a + eps e) - L(a - eps e)) / 2 eps``.
 The nominal rollout and every perturbed one are worlds of one batched simulator (worlds are
 independent), and AD reads the gradient of world 0's loss only.
@@ -30,10 +34,12 @@ __all__ = ["GOAL_ANGLE", "NOISE", "claw_loss_rollout", "grad_row", "run_grad"]
 log = logging.getLogger(__name__)
 
 GOAL_ANGLE = math.pi / 4  # within screw_claw's goal range
+GOAL_SPEED = 1.0  # rad/s, for the velocity loss
+LOSSES = ("pose", "velocity")
 NOISE = 0.2  # amplitude of the uniform action noise
 
 
-def claw_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float):
+def claw_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float, kind: str = "pose"):
     """Roll ``actions`` [H, W, nu] out from ``q0`` [W, nq]; returns (loss [W], contact_force [H, W])."""
     from ..sim import Control
 
@@ -50,11 +56,13 @@ def claw_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float)
         angle_err = (q[:, sim.nu] - goal) ** 2
         running = running + angle_err + ((out.fingertips - centre) ** 2).sum((-1, -2))
         forces.append(out.contact_force.detach())
+    if kind == "velocity":
+        return (qd[:, sim.nu] - GOAL_SPEED) ** 2 + 0.01 * (qd[:, : sim.nu] ** 2).sum(-1), torch.stack(forces)
     return running / len(actions) + angle_err, torch.stack(forces)
 
 
 def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: int, floor_rel: float,
-             generator: torch.Generator, device: str = "cpu") -> dict:
+             generator: torch.Generator, device: str = "cpu", loss_kind: str = "pose") -> dict:
     """One row of the gradient benchmark (see the module docstring)."""
     from ..sim import Simulator
 
@@ -72,7 +80,7 @@ def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: 
     actions = (base[:, None, :] + delta).to(**opts).requires_grad_(True)
     q0 = torch.tensor(task.touch_q if contact else task.free_q, **opts).expand(1 + 2 * k, sim.nq).contiguous()
 
-    loss, forces = claw_loss_rollout(sim, q0, actions, GOAL_ANGLE)
+    loss, forces = claw_loss_rollout(sim, q0, actions, GOAL_ANGLE, loss_kind)
     loss[0].backward()
     ad_full = actions.grad[:, 0].cpu()  # [H, nu]
     loss = loss.detach().cpu()
@@ -86,6 +94,7 @@ def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: 
         log.warning("H=%d contact=%s: contact force > 0 on %.0f%% of the steps", horizon, contact,
                     100 * contact_fraction)
     return {
+        "loss_kind": loss_kind,
         "horizon": horizon,
         "contact": contact,
         "median_rel_err": rel.median().item(),
@@ -105,15 +114,19 @@ def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, n
     generator = torch.Generator().manual_seed(seed)
     rows = []
     log.info("grad: the first row compiles the float64 kernels when not cached")
-    for horizon in horizons:
-        for contact in (True, False):
-            rows.append(grad_row(scene, setup, horizon, contact, eps, num_entries, floor_rel, generator, device))
-            log.info("grad: %s", rows[-1])
-        # growth of a free (contact-less) rollout is the baseline: a position loss on a second-order system
-        # already weighs early actions ~H^2 more than the last one
-        free = rows[-1]["grad_growth"]
-        for row in rows[-2:]:
-            row["grad_growth_vs_free"] = row["grad_growth"] / free
+    for loss_kind in LOSSES:
+        for horizon in horizons:
+            for contact in (True, False):
+                rows.append(grad_row(scene, setup, horizon, contact, eps, num_entries, floor_rel, generator,
+                                     device, loss_kind))
+                log.info("grad: %s", rows[-1])
+            # growth of a free (contact-less) rollout is the baseline: a position loss on a second-order
+            # system already weighs early actions ~H^2 more than the last one
+            free = rows[-1]["grad_growth"]
+            for row in rows[-2:]:
+                row["grad_growth_vs_free"] = row["grad_growth"] / free
     return {"task": task, "precision": "float64", "eps": eps, "floor_rel": floor_rel, "num_entries": num_entries,
-            "seed": seed, "loss_definition": "mean_t[(theta_t-theta*)^2 + sum_f |tip_f,t - object|^2] + (theta_H-theta*)^2",
-            "goal_angle": GOAL_ANGLE, "rows": rows}
+            "seed": seed, "loss_definition": {
+                "pose": "mean_t[(theta_t-theta*)^2 + sum_f |tip_f,t - object|^2] + (theta_H-theta*)^2",
+                "velocity": "(omega_H-omega*)^2 + 0.01 |qd_hand,H|^2"},
+            "goal_angle": GOAL_ANGLE, "goal_speed": GOAL_SPEED, "rows": rows}
