@@ -8,7 +8,6 @@ coordinate k moved by +eps / -eps, so one rollout gives every central difference
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 

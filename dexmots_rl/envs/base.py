@@ -138,7 +138,7 @@ class DexEnv(EnvBase):
         obs["achieved_goal"] = self.achieved_goal(obs)
         return obs
 
-    def _initial_obs(self, n_mask: torch.Tensor | None = None) -> dict:
+    def _initial_obs(self) -> dict:
         init = self.sample_initial(self.num_envs)
         pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
