@@ -113,7 +113,6 @@ class Simulator:
             scene.object_shape,
         )
         self.model = self._make_model()
-        self.launches_per_step = substeps + 1  # per block of worlds (one block per CPU core)
 
     # ----------------------------------------------------------------------------------------- set-up
     def _make_model(self):
@@ -199,7 +198,7 @@ class Simulator:
     def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
         """Gradient-free step: persistent buffers and launches recorded once, replayed per block."""
         if getattr(self, "_fast", None) is None:
-            traj = Trajectory(self, requires_grad=False)
+            traj = Trajectory(self)
             self._fast = (traj, [traj.launches(lo, hi, record=True) for lo, hi in traj.blocks])
         traj, cmds = self._fast
         traj.load(inputs[0], inputs[1], inputs[2:])
@@ -221,7 +220,7 @@ class SimStep(torch.autograd.Function):
         if not any(ctx.needs_input_grad[1:]):
             ctx.traj = None
             return tuple(sim._replay(inputs))
-        traj = Trajectory(sim, requires_grad=True)
+        traj = Trajectory(sim)
         traj.load(inputs[0], inputs[1], inputs[2:])
         traj.forward()
         ctx.traj = traj

@@ -43,7 +43,7 @@ def _run_blocks(fn, blocks):
 class Trajectory:
     """Buffers and launches for one env step of ``sim.num_worlds`` worlds."""
 
-    def __init__(self, sim, requires_grad: bool):
+    def __init__(self, sim):
         n, s_count, z = sim.num_worlds, sim.substeps, sim._zeros
         self.sim, self.n = sim, n
         rows = (s_count + 1) * n
@@ -52,7 +52,6 @@ class Trajectory:
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
         self.blocks = world_blocks(n, sim.device)
-        self.requires_grad = requires_grad
         self._wrap()
 
     def _wrap(self):
