@@ -17,7 +17,7 @@ import warp as wp
 
 from .kernels import build_kernels
 from .model import MAX_PLANES, ContactParams, SceneModel
-from .stepper import Trajectory, _run_blocks
+from .stepper import Trajectory, run_blocks
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
 
@@ -186,7 +186,8 @@ class Simulator:
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
     def adjoint_model(self):
-        """Adjoint container for the (constant) model struct: zero arrays the reverse pass may write."""
+        """Adjoint container for the (constant) model struct: scratch arrays the reverse pass writes model
+        gradients into. Nothing reads them (model parameters are not optimised), so they are never reset."""
         if getattr(self, "_adj_model", None) is None:
             adj = self.kernels.Model()
             for name, value in vars(self.model).items():
@@ -199,11 +200,10 @@ class Simulator:
         """Gradient-free step: persistent buffers and launches recorded once, replayed per block."""
         if getattr(self, "_fast", None) is None:
             traj = Trajectory(self)
-            self._fast = (traj, [traj.launches(lo, hi, record=True) for lo, hi in traj.blocks])
+            self._fast = (traj, {lo: traj.launches(lo, hi, record=True) for lo, hi in traj.blocks})
         traj, cmds = self._fast
         traj.load(inputs[0], inputs[1], inputs[2:])
-        replay = {lo: block for (lo, _), block in zip(traj.blocks, cmds)}
-        _run_blocks(lambda lo, hi: [cmd.launch() for cmd in replay[lo]], traj.blocks)
+        run_blocks(lambda lo, hi: [cmd.launch() for cmd in cmds[lo]], traj.blocks)
         return traj.outputs()
 
 

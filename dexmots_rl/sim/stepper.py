@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 import torch
 import warp as wp
 
-__all__ = ["Trajectory", "world_blocks"]
+__all__ = ["Trajectory", "run_blocks", "world_blocks"]
 
 MIN_WORLDS_PER_THREAD = 32  # below this a second CPU thread costs more than it saves
 _POOL: ThreadPoolExecutor | None = None
@@ -29,7 +29,7 @@ def world_blocks(num_worlds: int, device) -> list[tuple[int, int]]:
     return list(zip(bounds[:-1], bounds[1:]))
 
 
-def _run_blocks(fn, blocks):
+def run_blocks(fn, blocks):
     global _POOL
     if len(blocks) == 1:
         fn(*blocks[0])
@@ -86,7 +86,7 @@ class Trajectory:
         return out
 
     def forward(self) -> None:
-        _run_blocks(lambda lo, hi: self.launches(lo, hi), self.blocks)
+        run_blocks(lambda lo, hi: self.launches(lo, hi), self.blocks)
 
     def outputs(self) -> list[torch.Tensor]:
         last, sim = self.sim.substeps * self.n, self.sim
@@ -120,7 +120,7 @@ class Trajectory:
                           adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls[:4], w_adj_controls[4], *w_adj[2:],
                                       0, 0, 0, 0.0, 0.0])
 
-        _run_blocks(reverse, self.blocks)
+        run_blocks(reverse, self.blocks)
         # a world that blew up must not poison the others' gradients (the env resets it)
         grads = [adj[0][:n], adj[1][:n], *adj_controls]
         return [torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0) for g in grads]
