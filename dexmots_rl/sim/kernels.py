@@ -371,6 +371,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         kp: wp.array2d(dtype=dtype),
         kd: wp.array2d(dtype=dtype),
         params: wp.array2d(dtype=dtype),
+        ext: wp.array2d(dtype=dtype),
         wrench: wp.array2d(dtype=dtype),
         cforce: wp.array(dtype=dtype),
         w0: int,
@@ -395,6 +396,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             t_obj = t_obj + ft
             c_sum = c_sum + fc
         o = F * J
+        # external wrench on the object (world frame, torque about the object origin): the wrench planner
+        # drives the object alone with it
+        ext_f = vec3(ext[w, 0], ext[w, 1], ext[w, 2])
+        ext_t = vec3(ext[w, 3], ext[w, 4], ext[w, 5])
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
             cw = xo + Ro * m.obj_com
@@ -403,7 +408,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             inertia = wp.dot(a, Iw * a) + m.obj_mass * wp.dot(arm, arm) + m.obj_armature
             damp = params[w, 0]
             th_d = qd[r, o]
-            torque = wp.dot(a, t_obj + wp.cross(cw - xo, m.obj_mass * m.gravity))
+            torque = wp.dot(a, t_obj + ext_t + wp.cross(cw - xo, m.obj_mass * m.gravity))
             torque = torque - damp * th_d - params[w, 1] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
             v_new = th_d + dt * torque / (inertia + dt * damp)
             qd[ro, o] = v_new
@@ -411,8 +416,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         else:
             # free body: origin at the centre of mass, velocities in the world frame
             Iw = Ro * m.obj_inertia * wp.transpose(Ro)
-            v_new = vo + dt * (f_obj / m.obj_mass + m.gravity)
-            w_new = wo + dt * (wp.inverse(Iw) * (t_obj - wp.cross(wo, Iw * wo)))
+            v_new = vo + dt * ((f_obj + ext_f) / m.obj_mass + m.gravity)
+            w_new = wo + dt * (wp.inverse(Iw) * (t_obj + ext_t - wp.cross(wo, Iw * wo)))
             x_new = xo + dt * v_new
             rq = quat(q[r, o + 4], q[r, o + 5], q[r, o + 6], q[r, o + 3])
             rq = wp.normalize(rq + quat(w_new[0], w_new[1], w_new[2], dtype(0.0)) * rq * (dtype(0.5) * dt))

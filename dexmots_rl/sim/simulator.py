@@ -30,12 +30,16 @@ class Control:
 
     Torque control sets ``tau`` only; position control sets ``q_target``/``kp``/``kd``; variable
     impedance also varies ``kp`` per step. The PD terms are integrated implicitly (stable at any gain).
+    ``object_wrench`` [N, 6] (optional) is an external force + torque on the object in the world frame,
+    torque about the object origin (a hinge feels its axis component): the wrench planner drives the
+    object alone with it.
     """
 
     tau: torch.Tensor
     q_target: torch.Tensor
     kp: torch.Tensor
     kd: torch.Tensor
+    object_wrench: torch.Tensor | None = None
 
 
 class StepOutput(tuple):
@@ -172,7 +176,11 @@ class Simulator:
         n = joint_q.shape[0]
         if n != self.num_worlds:
             raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
-        return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd, params))
+        ext = control.object_wrench
+        if ext is None:
+            ext = self._zeros(n, 6)
+        return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd,
+                                        params, ext))
 
     def observe(self, joint_q, joint_qd=None):
         """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping."""
@@ -211,7 +219,7 @@ class SimStep(torch.autograd.Function):
     """One env step as an autograd Function: when an input needs a gradient, forward keeps the step's
     substep trajectory and backward runs the kernels' adjoints over it in reverse (no tape, no
     trajectory and no gradient buffers otherwise). Inputs: ``sim, joint_q, joint_qd, tau,
-    q_target, kp, kd, params``; outputs as :class:`StepOutput`."""
+    q_target, kp, kd, params, object_wrench``; outputs as :class:`StepOutput`."""
 
     @staticmethod
     def forward(ctx, sim: Simulator, *inputs):

@@ -47,9 +47,9 @@ class Trajectory:
         n, s_count, z = sim.num_worlds, sim.substeps, sim._zeros
         self.sim, self.n = sim, n
         rows = (s_count + 1) * n
-        # state trajectories and the per-step inputs: tau, q_target, kp, kd, params
+        # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
-        self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2)]
+        self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
         self.blocks = world_blocks(n, sim.device)
         self._wrap()
@@ -72,7 +72,7 @@ class Trajectory:
 
     def _substep_args(self, s: int, lo: int):
         sim = self.sim
-        return [sim.model, *self.w_traj, *self.w_controls[:4], self.w_controls[4], *self.w_acc, lo, s * self.n,
+        return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, lo, s * self.n,
                 (s + 1) * self.n, sim.sub_dt, 1.0 / sim.substeps]
 
     def launches(self, lo: int, hi: int, record: bool = False):
@@ -95,7 +95,7 @@ class Trajectory:
 
     def backward(self, grad_outputs) -> list[torch.Tensor]:
         """Reverse pass: adjoints of (q, qd, wrench, contact_force, pose, tips) -> adjoints of
-        (joint_q, joint_qd, tau, q_target, kp, kd, params)."""
+        (joint_q, joint_qd, tau, q_target, kp, kd, params, object_wrench)."""
         sim, n, last = self.sim, self.n, self.sim.substeps * self.n
         adj = [torch.zeros_like(t) for t in (self.q, self.qd, self.wrench, self.cforce)]
         adj_controls = [torch.zeros_like(t) for t in self.controls]
@@ -117,7 +117,7 @@ class Trajectory:
             for s in reversed(range(sim.substeps)):
                 wp.launch(sim.kernels.substep, dim=hi - lo, device=sim.device, adjoint=True,
                           inputs=self._substep_args(s, lo),
-                          adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls[:4], w_adj_controls[4], *w_adj[2:],
+                          adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls, *w_adj[2:],
                                       0, 0, 0, 0.0, 0.0])
 
         run_blocks(reverse, self.blocks)

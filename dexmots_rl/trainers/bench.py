@@ -2,6 +2,7 @@
 
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6]
+    dexmots-bench plan --task screw_claw --json [--iterations 200]
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
@@ -52,6 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--floor-rel", type=float, default=1e-3,
                    help="rel_err denominator floor, relative to max |dL/da| of the row")
     p.add_argument("--seed", type=int, default=0)
+
+    p = sub.add_parser("plan", help="wrench planning through the simulator: tracking-error reduction")
+    common(p)
+    p.add_argument("--iterations", type=int, default=200)
     return parser
 
 
@@ -99,6 +104,10 @@ def _execute(args: argparse.Namespace) -> dict:
 
             return run_throughput(args.task, args.num_envs, args.device, args.substeps, args.min_time,
                                   args.settle_steps, args.chunk_steps)
+        if args.bench == "plan":
+            from .plan import run_plan_bench
+
+            return run_plan_bench(args.task, args.iterations)
         from .bench_grad import run_grad
 
         result = run_grad(args.task, args.horizons, args.eps, args.num_entries, args.floor_rel, args.seed,
@@ -111,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point: print the result as JSON (``--json``) or as a table."""
     args = build_parser().parse_args(argv)
     result = _execute(args)
-    print(json.dumps(result) if args.json else format_table(result))
+    print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ from .finite_differences import (
     quat_to_matrix,
     wrenches_from_poses,
 )
+from .planner import PlanResult, interpolate_reference, optimize_wrenches, slerp
 from .trajectory import (
     FIELDS,
     FORMAT_NAME,
@@ -32,14 +33,18 @@ __all__ = [
     "FIELDS",
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "PlanResult",
     "PoseWrenchTrajectory",
     "TrajectoryFormatError",
     "angular_velocities",
+    "interpolate_reference",
     "load_pose_demo",
+    "optimize_wrenches",
     "quat_conjugate",
     "quat_log",
     "quat_multiply",
     "quat_to_matrix",
+    "slerp",
     "validate_trajectory_fields",
     "wrenches_from_poses",
 ]
