@@ -159,10 +159,10 @@ def test_success_flag_matches_goal_distance():
     env = make_env("screw_claw", num_envs=4, differentiable=False, seed=6)
     td = env.reset()
     # goals near and far from the knob's current angle (0): the env reads the goal from the TensorDict
-    td["desired_goal"] = torch.tensor([[0.0], [0.09], [-0.3], [1.0]])
+    td["task", "goal"] = torch.tensor([[0.0], [0.09], [-0.3], [1.0]])
     td["action"] = torch.zeros(4, 4)
     nxt = env.step(td)["next"]
-    expected = (nxt["object", "q"] - nxt["desired_goal"]).abs() < 0.1
+    expected = (nxt["object", "q"] - nxt["task", "goal"]).abs() < 0.1
     assert torch.equal(nxt["success"], expected)
     assert nxt["success"].any() and not nxt["success"].all()
     assert nxt["success"].squeeze(-1).tolist()[::3] == [True, False]

@@ -5,8 +5,12 @@ The full physical state of every world travels in the TensorDict under ``"sim"``
 its input TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
 (rewards, observations) back to the actions and the input state through :class:`~dexmots_rl.sim.SimStep`.
 
-Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward` and
-:meth:`task_success`.
+Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward`,
+:meth:`task_success` and :meth:`reference`.
+
+The task's final goal is carried under ``("task", "goal")`` (what the env reads back); ``"desired_goal"``
+is written for the policy (the final goal by default; the goal-conditioning transforms replace it with
+the reference window) and never read back. Reward terms are written under ``("reward_terms", name)``.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
 from .actions import ActionMap, validate_action
+from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED"]
 
@@ -41,16 +46,25 @@ class DexEnv(EnvBase):
         dtype: torch.dtype = torch.float32,
         seed: int | None = None,
         contact=None,
+        damping_range: tuple[float, float] | None = None,
+        friction_range: tuple[float, float] | None = None,
+        references=None,
     ):
         if not isinstance(num_envs, int) or num_envs <= 0:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         if max_episode_steps <= 0:
             raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
+        for name, rng in (("damping_range", damping_range), ("friction_range", friction_range)):
+            if rng is not None and not (len(rng) == 2 and 0 <= rng[0] <= rng[1]):
+                raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {rng!r}")
         device = torch.device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=substeps, contact=contact)
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, max_episode_steps
         self.dtype = dtype
+        self.damping_range = damping_range or (scene.object_damping,) * 2
+        self.friction_range = friction_range or (scene.object_friction,) * 2
+        self.reference_bank = None if references is None else load_reference_bank(references, dtype, device)
         self.actions = ActionMap(self.sim, action)
         self.action_type = action
         self._make_specs()
@@ -71,6 +85,7 @@ class DexEnv(EnvBase):
             ("fingertips", "pos"): (s.num_fingers, 3),
             "achieved_goal": (self.goal_dim,),
             "desired_goal": (self.goal_dim,),
+            ("task", "goal"): (self.goal_dim,),
             ("sim", "joint_q"): (sim.nq,),
             ("sim", "joint_qd"): (sim.nv,),
             ("sim", "params"): (2,),
@@ -81,7 +96,10 @@ class DexEnv(EnvBase):
         obs = Composite(shape=(n,), device=dev)
         for key, shape in self._obs_shapes().items():
             obs[key] = Unbounded(shape=(n, *shape), dtype=dt, device=dev)
+        for name in self.reward_terms:
+            obs[("reward_terms", name)] = Unbounded(shape=(n, 1), dtype=dt, device=dev)
         obs[("task", "step")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
+        obs[("task", "ref_index")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
         obs[("info", "sim_failures")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
         obs["success"] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev)
         self.observation_spec = obs
@@ -97,15 +115,25 @@ class DexEnv(EnvBase):
 
     # -------------------------------------------------------------------------------------- task API
     goal_dim = 1
+    reward_terms: tuple[str, ...] = ()
 
     def sample_initial(self, n: int) -> dict:
-        """Initial ``joint_q``, ``joint_qd``, ``params`` and ``goal`` for ``n`` worlds (use self.generator)."""
+        """Initial ``joint_q``, ``joint_qd``, ``params``, ``goal`` and ``ref_index`` [n, 1] (int64) for ``n``
+        worlds (use self.generator)."""
+        raise NotImplementedError
+
+    def reference(self, td: TensorDictBase, steps: torch.Tensor) -> TensorDictBase:
+        """The object-centric reference at env steps ``steps`` [N, H] of each world's plan: a TensorDict
+        [N, H] with ``"pose"`` [7], ``"joint_q"`` [K], ``"wrench"`` [6] and ``"joint_torque"`` [K]; ``td``
+        holds the worlds' ``("task", ...)`` and ``("sim", ...)`` entries."""
         raise NotImplementedError
 
     def achieved_goal(self, obs: dict) -> torch.Tensor:
         raise NotImplementedError
 
-    def task_reward(self, obs: dict, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        """``(reward [N, 1], {term name: [N, 1]})`` after a step; ``task`` holds ``("task", ...)`` entries
+        (goal, the step counter after the step, ref_index) and ``("sim", "params")``."""
         raise NotImplementedError
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
@@ -118,6 +146,22 @@ class DexEnv(EnvBase):
 
     def _rand(self, *shape) -> torch.Tensor:
         return torch.rand(*shape, generator=self.generator, device=self.device, dtype=self.dtype)
+
+    def _uniform(self, n: int, lo_hi: tuple[float, float]) -> torch.Tensor:
+        lo, hi = lo_hi
+        return lo + (hi - lo) * self._rand(n, 1)
+
+    def sample_params(self, n: int) -> torch.Tensor:
+        """Per-episode object joint ``[damping, friction]`` [n, 2], uniform in ``damping_range`` /
+        ``friction_range`` (seeded by the env's generator): the randomisation hook every task reuses."""
+        return torch.cat([self._uniform(n, self.damping_range), self._uniform(n, self.friction_range)], -1)
+
+    def sample_ref_index(self, n: int) -> torch.Tensor:
+        """Which plan of the reference bank each world follows this episode (0 without a bank)."""
+        if self.reference_bank is None:
+            return torch.zeros(n, 1, dtype=torch.int64, device=self.device)
+        m = self.reference_bank.batch_size[0]
+        return torch.randint(0, m, (n, 1), generator=self.generator, device=self.device)
 
     def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips) -> dict:
         nu = self.sim.nu
@@ -133,6 +177,7 @@ class DexEnv(EnvBase):
             ("sim", "joint_q"): q,
             ("sim", "joint_qd"): qd,
             ("sim", "params"): params,
+            ("task", "goal"): goal,
             "desired_goal": goal,
         }
         obs["achieved_goal"] = self.achieved_goal(obs)
@@ -143,7 +188,9 @@ class DexEnv(EnvBase):
         pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
         zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
-        return self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)
+        obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)
+        obs[("task", "ref_index")] = init["ref_index"]
+        return obs
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         obs = self._initial_obs()
@@ -168,7 +215,9 @@ class DexEnv(EnvBase):
         out = TensorDict(obs, batch_size=[n], device=self.device)
         out.set(("task", "step"), step)
         out.set(("info", "sim_failures"), failures)
-        out.set("success", self.task_success(obs, obs["desired_goal"]))
+        for name in self.reward_terms:
+            out.set(("reward_terms", name), torch.zeros(n, 1, dtype=self.dtype, device=self.device))
+        out.set("success", self.task_success(obs, obs[("task", "goal")]))
         false = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
         return out
@@ -179,21 +228,26 @@ class DexEnv(EnvBase):
         q = tensordict.get(("sim", "joint_q"))
         qd = tensordict.get(("sim", "joint_qd"))
         params = tensordict.get(("sim", "params"))
-        goal = tensordict.get("desired_goal")
+        goal = tensordict.get(("task", "goal"))
+        step = tensordict.get(("task", "step")) + 1
+        task = {("task", "goal"): goal, ("task", "step"): step, ("sim", "params"): params,
+                ("task", "ref_index"): tensordict.get(("task", "ref_index"))}
         if not self.differentiable:
             q, qd, params, action = q.detach(), qd.detach(), params.detach(), action.detach()
         with torch.set_grad_enabled(self.differentiable and torch.is_grad_enabled()):
             out = self.sim.step(q, qd, self.actions(action.to(self.dtype)), params)
             obs = self._observe(out.joint_q, out.joint_qd, params, goal, out.wrench, out.contact_force,
                                 out.body_pose, out.fingertips)
-            reward = self.task_reward(obs, goal, action)
-        step = tensordict.get(("task", "step")) + 1
+            obs[("task", "ref_index")] = task[("task", "ref_index")]
+            reward, terms = self.task_reward(obs, task, action)
+            obs.update({("reward_terms", name): terms[name] for name in self.reward_terms})
         failures = tensordict.get(("info", "sim_failures")).clone()
         blown = ~(torch.isfinite(out.joint_q).all(-1, keepdim=True) & torch.isfinite(out.joint_qd).all(-1, keepdim=True))
         blown |= out.joint_qd.detach().abs().amax(-1, keepdim=True).nan_to_num(float("inf")) > MAX_JOINT_SPEED
         if bool(blown.any()):
             # reset the worlds that blew up so that no NaN reaches the batch; count them
             fresh = self._initial_obs()
+            fresh.update({("reward_terms", name): torch.zeros_like(terms[name]) for name in self.reward_terms})
             for key in list(obs):
                 m = blown.reshape(-1, *([1] * (obs[key].dim() - 1)))
                 obs[key] = torch.where(m, fresh[key], obs[key])
@@ -207,7 +261,7 @@ class DexEnv(EnvBase):
             "reward": reward,
             ("task", "step"): step,
             ("info", "sim_failures"): failures,
-            "success": self.task_success(obs, goal),
+            "success": self.task_success(obs, obs[("task", "goal")]),
             "terminated": terminated,
             "truncated": truncated,
             "done": terminated | truncated,

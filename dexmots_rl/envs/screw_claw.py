@@ -6,12 +6,25 @@ joint damping and Coulomb friction are drawn from ``damping_range`` / ``friction
 spread by ``open_angle``) with a little joint noise. Success: ``|theta - theta_goal| < success_threshold``
 (0.1 rad); evaluation reads it at the last step of the episode.
 
+Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
+to the goal over ``ramp_steps`` env steps and then holds; the reference torque about the hinge is the
+one the *nominal* knob (the MJCF's damping and friction, not the episode's randomised ones: the plan
+does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after. With
+``references=`` (plans from ``dexmots-plan``) each world follows one planned trajectory instead and its
+goal is that plan's final angle.
+
+Reward (paper Eq. 1–3, terms under ``("reward_terms", name)``):
+``λ_pose exp(-|θ - θ̄_k| / pose_scale) + λ_wrench exp(-|τ - τ̄_k| / torque_scale) - λ_act ‖w ⊙ a‖
++ λ_f Σ_i exp(-‖x_fi - x_o‖)`` with k the step counter, τ the contact torque about the hinge axis (for
+an articulation the wrench term compares the generalised force: the hinge carries the rest) and w the
+distal-weighted joint weights (stiffness actions of ``"vi"`` are not penalised).
+
 Example:
     >>> from dexmots_rl.envs import make_env
     >>> env = make_env("screw_claw", num_envs=2, seed=0)
     >>> td = env.rollout(3)
-    >>> td["next", "reward"].shape
-    torch.Size([2, 3, 1])
+    >>> td["next", "reward"].shape, td["next", "reward_terms", "pose"].shape
+    (torch.Size([2, 3, 1]), torch.Size([2, 3, 1]))
 """
 
 from __future__ import annotations
@@ -19,19 +32,30 @@ from __future__ import annotations
 import math
 
 import torch
+from tensordict import TensorDict
 
 from ..assets import asset_path
 from ..sim import load_scene
 from .base import DexEnv
-from .rewards import angle_tracking_reward
+from .references import lookup
+from .rewards import (
+    RewardCoefficients,
+    action_penalty,
+    angle_tracking_reward,
+    distal_weighted_joint_weights,
+    fingertip_reward,
+)
 
 __all__ = ["ScrewClawEnv"]
+
+KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
 
 
 class ScrewClawEnv(DexEnv):
     """Claw + knob on a vertical hinge; see the module docstring."""
 
     asset = "claw_screw.xml"
+    reward_terms = ("pose", "wrench", "action", "fingertip")
 
     def __init__(
         self,
@@ -47,43 +71,91 @@ class ScrewClawEnv(DexEnv):
         open_angle: float = math.radians(60.0),
         joint_noise: float = 0.05,
         success_threshold: float = 0.1,
+        ramp_steps: int = 60,
+        reward: RewardCoefficients | dict | None = None,
+        pose_scale: float = 0.5,
+        torque_scale: float = 1.0,
         **kwargs,
     ):
-        for name, (lo, hi) in (("goal_range", goal_range), ("damping_range", damping_range),
-                               ("friction_range", friction_range)):
-            if not 0 <= lo <= hi:
-                raise ValueError(f"{name} must satisfy 0 <= low <= high, got {(lo, hi)}")
-        self.goal_range, self.damping_range, self.friction_range = goal_range, damping_range, friction_range
-        self.open_angle, self.joint_noise, self.success_threshold = open_angle, joint_noise, success_threshold
+        if not (len(goal_range) == 2 and 0 <= goal_range[0] <= goal_range[1]):
+            raise ValueError(f"goal_range must be (low, high) with 0 <= low <= high, got {goal_range!r}")
+        if ramp_steps < 1:
+            raise ValueError(f"ramp_steps must be >= 1, got {ramp_steps}")
+        if not (pose_scale > 0 and torque_scale > 0):
+            raise ValueError(f"pose_scale and torque_scale must be > 0, got {pose_scale}, {torque_scale}")
+        self.goal_range, self.open_angle, self.joint_noise = goal_range, open_angle, joint_noise
+        self.success_threshold, self.ramp_steps = success_threshold, ramp_steps
+        self.coeffs = reward if isinstance(reward, RewardCoefficients) else RewardCoefficients(**(reward or {}))
+        self.pose_scale, self.torque_scale = pose_scale, torque_scale
         super().__init__(load_scene(asset_path(self.asset)), num_envs, device=device, differentiable=differentiable,
-                         action=action, max_episode_steps=max_episode_steps, seed=seed, **kwargs)
+                         action=action, max_episode_steps=max_episode_steps, seed=seed, damping_range=damping_range,
+                         friction_range=friction_range, **kwargs)
         # joint order in the MJCF: right proximal, right distal, left proximal, left distal
         self._open_pose = torch.tensor([open_angle, 0.0, -open_angle, 0.0], dtype=self.dtype, device=self.device)
         scene = self.sim.scene
-        self._lower = torch.as_tensor(scene.dof_lower, dtype=self.dtype, device=self.device)
-        self._upper = torch.as_tensor(scene.dof_upper, dtype=self.dtype, device=self.device)
 
-    def _uniform(self, n: int, lo_hi: tuple[float, float]) -> torch.Tensor:
-        lo, hi = lo_hi
-        return lo + (hi - lo) * self._rand(n, 1)
+        def t(x):
+            return torch.as_tensor(x, dtype=self.dtype, device=self.device)
+
+        self._lower, self._upper = t(scene.dof_lower), t(scene.dof_upper)
+        self._axis = t(scene.object_base_rot @ scene.object_axis)
+        self._knob_pos = t(scene.object_base_pos)
+        self._nominal = (scene.object_damping, scene.object_friction)
+        weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
+                                                device=self.device)
+        self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if action == "vi" else weights
 
     def sample_initial(self, n: int) -> dict:
         noise = self.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
         hand = torch.minimum(torch.maximum(self._open_pose + noise, self._lower), self._upper)
         q = torch.cat([hand, torch.zeros(n, 1, dtype=self.dtype, device=self.device)], -1)
         sign = torch.where(self._rand(n, 1) < 0.5, -1.0, 1.0).to(self.dtype)
+        goal = sign * self._uniform(n, self.goal_range)
+        ref_index = self.sample_ref_index(n)
+        if self.reference_bank is not None:
+            goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
         return {
             "joint_q": q,
             "joint_qd": torch.zeros(n, self.sim.nv, dtype=self.dtype, device=self.device),
-            "params": torch.cat([self._uniform(n, self.damping_range), self._uniform(n, self.friction_range)], -1),
-            "goal": sign * self._uniform(n, self.goal_range),
+            "params": self.sample_params(n),
+            "goal": goal,
+            "ref_index": ref_index,
         }
+
+    def reference(self, td, steps: torch.Tensor) -> TensorDict:
+        if self.reference_bank is not None:
+            return lookup(self.reference_bank, td[("task", "ref_index")], steps)
+        goal = td[("task", "goal")]  # [N, 1]
+        frac = (steps.to(self.dtype) / self.ramp_steps).clamp(max=1.0).unsqueeze(-1)  # [N, H, 1]
+        angle = goal.unsqueeze(1) * frac
+        speed = goal.unsqueeze(1) / (self.ramp_steps * self.sim.dt)
+        moving = ((steps >= 1) & (steps <= self.ramp_steps)).unsqueeze(-1)
+        damping, friction = self._nominal
+        torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
+        half = 0.5 * angle
+        quat = torch.cat([torch.cos(half), torch.sin(half) * self._axis], -1)
+        pose = torch.cat([self._knob_pos.expand(*angle.shape[:2], 3), quat], -1)
+        wrench = torch.cat([torch.zeros_like(pose[..., :3]), torque * self._axis], -1)
+        return TensorDict({"pose": pose, "joint_q": angle, "wrench": wrench, "joint_torque": torque},
+                          batch_size=steps.shape)
 
     def achieved_goal(self, obs: dict) -> torch.Tensor:
         return obs[("object", "q")]
 
-    def task_reward(self, obs: dict, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return angle_tracking_reward(obs[("object", "q")], goal)
+    def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        ref = self.reference(task, task[("task", "step")])[:, 0]
+        angle = obs[("object", "q")]
+        axial = (obs[("object", "wrench")][:, 3:] * self._axis).sum(-1, keepdim=True)
+        terms = {
+            "pose": angle_tracking_reward(angle, ref["joint_q"], self.pose_scale),
+            "wrench": angle_tracking_reward(axial, ref["joint_torque"], self.torque_scale),
+            "action": action_penalty(action.to(self.dtype), self._act_weights),
+            "fingertip": fingertip_reward(obs[("fingertips", "pos")], obs[("object", "pose")][:, :3]),
+        }
+        c = self.coeffs
+        total = (c.lambda_pose * terms["pose"] + c.lambda_wrench * terms["wrench"] + c.lambda_act * terms["action"]
+                 + c.lambda_f * terms["fingertip"])
+        return total, terms
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         return (obs[("object", "q")] - goal).abs() < self.success_threshold

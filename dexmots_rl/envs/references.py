@@ -1,0 +1,74 @@
+"""Per-world object-centric references: a bank of planned trajectories, looked up by step counter.
+
+A *bank* is a TensorDict ``[M, T]`` of M :class:`~dexmots_rl.trajectories.PoseWrenchTrajectory` rows
+(``pose`` [7], ``joint_q`` [K], ``wrench`` [6], ``joint_torque`` [K]); plans of different lengths are padded
+by repeating their last row (the object holds its final pose). At reset every world draws one plan
+(``("task", "ref_index")``); after ``k`` env steps its reference is row ``k`` of that plan (clamped to the
+last row). Banks come from ``dexmots-plan`` (a directory of ``.pt`` files or one file) or from a list of
+trajectories.
+
+Example:
+    >>> import torch
+    >>> from dexmots_rl.trajectories import PoseWrenchTrajectory
+    >>> quat = torch.tensor([[1.0, 0, 0, 0]] * 3)
+    >>> plan = PoseWrenchTrajectory(torch.zeros(3, 3), quat, torch.zeros(3, 6), dt=0.1,
+    ...                             joint_q=torch.tensor([[0.0], [0.5], [1.0]]))
+    >>> bank = load_reference_bank([plan])
+    >>> lookup(bank, torch.tensor([[0]]), torch.tensor([[1, 2, 7]]))["joint_q"].flatten().tolist()
+    [0.5, 1.0, 1.0]
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import torch
+from tensordict import TensorDict
+
+__all__ = ["REFERENCE_KEYS", "load_reference_bank", "lookup"]
+
+REFERENCE_KEYS = ("pose", "joint_q", "wrench", "joint_torque")
+
+
+def _trajectories(src) -> list:
+    from ..trajectories import PoseWrenchTrajectory
+
+    if isinstance(src, PoseWrenchTrajectory):
+        return [src]
+    if isinstance(src, (str, os.PathLike)):
+        path = Path(src)
+        if path.is_dir():
+            files = sorted(path.glob("*.pt"))
+            if not files:
+                raise ValueError(f"references: no .pt plan files in directory {path}")
+            return [PoseWrenchTrajectory.load(f) for f in files]
+        return [PoseWrenchTrajectory.load(path)]
+    if isinstance(src, Sequence) and len(src) and all(isinstance(t, PoseWrenchTrajectory) for t in src):
+        return list(src)
+    raise ValueError(f"references must be a plan file, a directory of plans or a non-empty list of "
+                     f"PoseWrenchTrajectory, got {type(src).__name__}")
+
+
+def load_reference_bank(src, dtype: torch.dtype = torch.float32, device="cpu") -> TensorDict:
+    """Stack plans into a bank ``[M, T]`` (see the module docstring); all plans must share K and dt."""
+    plans = _trajectories(src)
+    ks = {t.num_joints for t in plans}
+    dts = {round(t.dt, 9) for t in plans}
+    if len(ks) != 1 or len(dts) != 1:
+        raise ValueError(f"references: plans disagree on articulation size {sorted(ks)} or dt {sorted(dts)}")
+    horizon = max(t.horizon for t in plans)
+    rows = []
+    for t in plans:
+        padded = t.slice(0, horizon)
+        rows.append(TensorDict({"pose": padded.poses, "joint_q": padded.joint_q, "wrench": padded.wrench,
+                                "joint_torque": padded.joint_torque}, batch_size=[horizon]))
+    return torch.stack(rows).to(device=device, dtype=dtype)
+
+
+def lookup(bank: TensorDict, ref_index: torch.Tensor, steps: torch.Tensor) -> TensorDict:
+    """Rows ``steps`` [N, H] (clamped to the plan length) of plans ``ref_index`` [N, 1]: a TensorDict [N, H]."""
+    m, horizon = bank.batch_size
+    idx = ref_index.reshape(-1, 1).clamp(0, m - 1).expand_as(steps)
+    return bank[idx, steps.clamp(0, horizon - 1)]

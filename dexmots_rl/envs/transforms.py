@@ -1,0 +1,110 @@
+"""Goal conditioning as torchrl transforms: the three goal representations of the paper's ablation.
+
+:class:`GoalConditioning` writes ``"desired_goal"`` (which the env never reads back: it keeps its own goal
+under ``("task", "goal")``) from the task's object-centric reference, indexed by the env's step counter
+``("task", "step")`` and each world's plan ``("task", "ref_index")``:
+
+============  ==========================================================  ================
+mode          ``"desired_goal"``                                          width
+============  ==========================================================  ================
+pose          the final goal (the task's goal coordinates)                ``goal_dim``
+pose_traj     the reference object coordinates of the next H steps        ``H·D``
+pose_wrench   per step of the next H: coordinates, then wrench            ``H·(D + W)``
+============  ==========================================================  ================
+
+Object coordinates (``D``) are the articulation angles for an articulated object and pos + wxyz quat
+(7) for a free body; the wrench (``W``) is the generalised force on the articulation (K) or the
+force + torque (6) on a free body. ``"achieved_goal"`` (the env's) stays the current coordinates.
+:func:`observation_transform` then flattens and concatenates the policy input ``"observation"``.
+
+Example:
+    >>> from dexmots_rl.envs import make_env
+    >>> env = make_env("screw_claw", num_envs=2, goal="pose_wrench", goal_horizon=4, seed=0)
+    >>> env.reset()["desired_goal"].shape
+    torch.Size([2, 8])
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import CatTensors, Compose, FlattenObservation, Transform
+
+__all__ = ["GOAL_MODES", "POLICY_KEYS", "GoalConditioning", "observation_transform"]
+
+GOAL_MODES = ("pose", "pose_traj", "pose_wrench")
+
+# what the default policy input "observation" is assembled from (never read back by the env)
+POLICY_KEYS = [
+    ("hand", "q"),
+    ("hand", "qd"),
+    ("object", "q"),
+    ("object", "qd"),
+    ("fingertips", "pos"),
+    "desired_goal",
+]
+
+
+class GoalConditioning(Transform):
+    """Write ``"desired_goal"`` for one of :data:`GOAL_MODES` (see the module docstring)."""
+
+    def __init__(self, mode: str = "pose", horizon: int = 8):
+        if mode not in GOAL_MODES:
+            raise ValueError(f"goal mode {mode!r} is unknown; known: {', '.join(GOAL_MODES)}")
+        if not isinstance(horizon, int) or horizon < 1:
+            raise ValueError(f"goal_horizon must be a positive integer, got {horizon!r}")
+        super().__init__(in_keys=[("task", "step"), ("task", "goal")], out_keys=["desired_goal"])
+        self.mode, self.horizon = mode, horizon
+
+    def _task(self):
+        return self.parent.base_env
+
+    def _width(self) -> int:
+        env = self._task()
+        if self.mode == "pose":
+            return env.goal_dim
+        articulated = env.sim.scene.object_kind == 0
+        coords = env.sim.scene.object_nq if articulated else 7
+        wrench = env.sim.scene.object_nv if articulated else 6
+        return self.horizon * (coords + (wrench if self.mode == "pose_wrench" else 0))
+
+    def _goal(self, td: TensorDictBase) -> torch.Tensor:
+        if self.mode == "pose":
+            return td.get(("task", "goal"))
+        env = self._task()
+        steps = td.get(("task", "step")) + torch.arange(1, self.horizon + 1, device=td.device)
+        ref = env.reference(td, steps)
+        articulated = env.sim.scene.object_kind == 0
+        parts = [ref["joint_q"] if articulated else ref["pose"]]
+        if self.mode == "pose_wrench":
+            parts.append(ref["joint_torque"] if articulated else ref["wrench"])
+        return torch.cat(parts, -1).flatten(-2).to(td.get(("task", "goal")).dtype)
+
+    def _call(self, td: TensorDictBase) -> TensorDictBase:
+        td.set("desired_goal", self._goal(td))
+        return td
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        # the goal depends on several entries at once, so there is no per-key _apply_transform
+        return self._call(td)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        old = observation_spec["desired_goal"]
+        observation_spec["desired_goal"] = Unbounded(shape=(*old.shape[:-1], self._width()), dtype=old.dtype,
+                                                     device=old.device)
+        return observation_spec
+
+
+def observation_transform(goal: str = "pose", goal_horizon: int = 8) -> Compose:
+    """Goal conditioning, then :data:`POLICY_KEYS` flattened and concatenated into ``"observation"``."""
+    flat_tips = ("fingertips", "pos_flat")
+    return Compose(
+        GoalConditioning(goal, goal_horizon),
+        FlattenObservation(-2, -1, in_keys=[("fingertips", "pos")], out_keys=[flat_tips]),
+        CatTensors(in_keys=[k if k != ("fingertips", "pos") else flat_tips for k in POLICY_KEYS],
+                   out_key="observation", del_keys=False),
+    )
