@@ -1,0 +1,254 @@
+"""``dexmots-train``: DexMOTS policy learning with SHAC / AHAC, readable top to bottom.
+
+    dexmots-train                                   # screw_claw, SHAC, configs/ defaults
+    dexmots-train task=screw_claw algo=ahac seed=1 algo.iterations=100
+    dexmots-train resume=runs/screw_claw_shac_seed0 # continue from the last checkpoint
+    torchrun --nproc_per_node 2 -m dexmots_rl.trainers.train task.num_envs=32   # data parallel
+
+One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
+policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
+huge) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
+on the detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the
+episodes continue from the rollout's last state (graph cut). The run directory gets the resolved
+config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at the end,
+``metrics.json`` with the final evaluation (:mod:`.evaluate`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.objectives import SoftUpdate
+from tqdm.auto import tqdm
+
+from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
+from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
+from .distributed import Distributed
+from .evaluate import evaluate_policy, make_task_env
+from .networks import make_networks
+
+__all__ = ["CONFIG_DIR", "train", "main"]
+
+log = logging.getLogger(__name__)
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+def build(cfg: DictConfig, rank: int = 0):
+    """Env, networks, loss, optimisers and the target updater of a run."""
+    torch.manual_seed(cfg.seed + rank)
+    env = make_task_env(cfg.task, cfg.task.num_envs, differentiable=True, seed=cfg.seed + 1000 * rank,
+                        device=cfg.device)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    act_dim = env.action_spec.shape[-1]
+    torch.manual_seed(cfg.seed)  # identical initial networks on every rank
+    actor, critic, norm = make_networks(obs_dim, act_dim, tuple(cfg.algo.hidden), cfg.algo.init_log_std)
+    loss = SHACLoss(actor_network=actor, critic_network=critic, gamma=cfg.algo.gamma, lmbda=cfg.algo.lmbda)
+    loss.make_value_estimator()  # built now, so a checkpoint's state_dict finds it when resuming
+    with warnings.catch_warnings():  # torchrl warns for eps < 0.5; SHAC's target critic is updated that fast
+        warnings.simplefilter("ignore", UserWarning)
+        updater = SoftUpdate(loss, tau=1.0 - cfg.algo.target_alpha)
+    betas = tuple(cfg.algo.betas)
+    actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.algo.actor_lr, betas=betas)
+    critic_opt = torch.optim.Adam(critic.parameters(), lr=cfg.algo.critic_lr, betas=betas)
+    ahac = None
+    if cfg.algo.name == "ahac":
+        ahac = AdaptiveHorizon(cfg.algo.horizon_min, cfg.algo.horizon_max, cfg.algo.contact_threshold,
+                               cfg.algo.dual_lr, horizon_init=cfg.algo.horizon)
+    torch.manual_seed(cfg.seed + rank)
+    return env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac
+
+
+def train(cfg: DictConfig) -> dict:
+    """Train (or resume) a run; returns the final metrics dict (also written to ``metrics.json``)."""
+    dist = Distributed.from_environment()
+    run_dir = Path(cfg.run_dir)
+    start = None
+    if cfg.resume:
+        start = load_checkpoint(latest_checkpoint(cfg.resume), task=cfg.task.name)
+        if start.get("algo") != cfg.algo.name:
+            raise CheckpointError(f"{cfg.resume} was trained with algo {start.get('algo')!r}, not {cfg.algo.name!r}")
+        run_dir = Path(cfg.resume)
+    env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac = build(cfg, dist.rank)
+    modules = {"actor": actor, "critic": critic, "loss": loss, "norm": norm}
+    if ahac is not None:
+        modules["ahac"] = ahac
+    optimizers = {"actor": actor_opt, "critic": critic_opt}
+    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "wall_clock_s": 0.0}
+    td = env.reset()
+    if start is not None:
+        for name, module in modules.items():
+            module.load_state_dict(start["modules"][name])
+        for name, opt in optimizers.items():
+            opt.load_state_dict(start["optimizers"][name])
+        counters.update(start["counters"])
+        td = TensorDict.from_dict(start["env_state"], batch_size=td.batch_size)
+        torch.set_rng_state(start["rng"]["torch"])
+        env.base_env.generator.set_state(start["rng"]["env"])
+    if dist.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    logger = _logger(cfg, run_dir) if dist.is_main else None
+    iterations = cfg.algo.iterations
+    bar = tqdm(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
+               disable=not (cfg.progress and dist.is_main), file=sys.stderr)
+    t_start = time.perf_counter() - counters["wall_clock_s"]
+    stop = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
+    while counters["iteration"] < stop:
+        it = counters["iteration"]
+        frac = 1.0 - it / iterations if cfg.algo.lr_decay == "linear" else 1.0
+        for opt, lr in ((actor_opt, cfg.algo.actor_lr), (critic_opt, cfg.algo.critic_lr)):
+            for group in opt.param_groups:
+                group["lr"] = lr * frac
+        horizon = ahac.horizon if ahac is not None else cfg.algo.horizon
+
+        # 1. differentiable rollout under the sampled policy (normaliser frozen: its buffers are constants)
+        with set_exploration_type(ExplorationType.RANDOM):
+            rollout = env.rollout(horizon, actor, auto_reset=False, break_when_any_done=False, tensordict=td)
+        if ahac is not None:
+            ahac.update_from_rollout(rollout)
+            if cfg.algo.truncate:
+                rollout = ahac.truncate_rollout(rollout)
+
+        # 2. actor: backpropagate the short-horizon return through the simulator
+        actor_opt.zero_grad()
+        loss_actor = loss.actor_loss(rollout)
+        loss_actor.backward()
+        dist.average_gradients(actor.parameters())
+        grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
+        if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
+            counters["skipped_updates"] += 1
+            actor_opt.zero_grad()
+        else:
+            actor_opt.step()
+
+        # 3. observation statistics, outside the graph; 4. critic on the detached rollout
+        dist.update_norm(norm, rollout.get("observation"))
+        data = loss.critic_targets(rollout).reshape(-1)
+        critic_losses = []
+        batch_size = max(1, data.numel() // cfg.algo.critic_minibatches)
+        for _ in range(cfg.algo.critic_iterations):
+            for batch in data[torch.randperm(data.numel())].split(batch_size):
+                critic_opt.zero_grad()
+                value_loss = loss.critic_loss(batch)
+                value_loss.backward()
+                dist.average_gradients(critic.parameters())
+                critic_opt.step()
+                critic_losses.append(value_loss.item())
+        updater.step()
+        td = next_rollout_start(env, rollout)
+
+        # 5. bookkeeping
+        counters["iteration"] += 1
+        counters["env_steps"] += rollout.numel() * dist.world_size
+        counters["wall_clock_s"] = time.perf_counter() - t_start
+        row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
+        bar.update(1)
+        bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
+                        reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
+        if dist.is_main:
+            _log_row(logger, run_dir, row)
+            last = counters["iteration"] == stop
+            if last or counters["iteration"] % cfg.checkpoint_every == 0:
+                _save(run_dir, cfg, counters, modules, optimizers, td, env)
+            if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
+                ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device)
+                _log_row(logger, run_dir, {"iteration": counters["iteration"],
+                                           **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
+    bar.close()
+    result = {}
+    if dist.is_main and counters["iteration"] == iterations:
+        ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device)
+        result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
+                  "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
+                  "skipped_updates": counters["skipped_updates"], "run_dir": str(run_dir)}
+        (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
+    dist.close()
+    return result
+
+
+def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist) -> dict:
+    nxt = rollout.get("next")
+    done = nxt.get("done").squeeze(-1)
+    success = nxt.get("success").squeeze(-1)
+    finished = dist.sum(torch.tensor([float(done.sum()), float((success & done).sum())]))
+    row = {
+        "iteration": counters["iteration"],
+        "env_steps": counters["env_steps"],
+        "wall_clock_s": round(counters["wall_clock_s"], 3),
+        "reward": float(dist.mean(nxt.get("reward").detach().mean())),
+        "episode_success": float(finished[1] / finished[0]) if finished[0] > 0 else float("nan"),
+        "loss_actor": float(loss_actor.detach()),
+        "loss_critic": sum(critic_losses) / max(len(critic_losses), 1),
+        "grad_norm": grad_norm,
+        "horizon": horizon,
+        "skipped_updates": counters["skipped_updates"],
+        "sim_failures": int(nxt.get(("info", "sim_failures")).sum()),
+    }
+    if "reward_terms" in nxt.keys():
+        for name, value in nxt.get("reward_terms").items():
+            row[f"reward_{name}"] = float(value.detach().mean())
+    return row
+
+
+def _logger(cfg, run_dir: Path):
+    from torchrl.record.loggers import get_logger
+
+    if cfg.logger not in ("csv", "tensorboard"):
+        raise ValueError(f"logger must be 'csv' or 'tensorboard', got {cfg.logger!r}")
+    return get_logger(cfg.logger, logger_name=str(run_dir), experiment_name="logs")
+
+
+def _log_row(logger, run_dir: Path, row: dict) -> None:
+    with open(run_dir / "metrics.jsonl", "a") as f:
+        f.write(json.dumps(row) + "\n")
+    if logger is not None:
+        for key, value in row.items():
+            if key not in ("iteration",) and isinstance(value, (int, float)) and value == value:
+                logger.log_scalar(key, value, step=row["iteration"])
+
+
+def _save(run_dir, cfg, counters, modules, optimizers, td, env) -> None:
+    save_checkpoint(run_dir / "checkpoints" / "last.pt", {
+        "task": cfg.task.name,
+        "algo": cfg.algo.name,
+        "config": OmegaConf.to_container(cfg, resolve=True),
+        "iteration": counters["iteration"],
+        "counters": dict(counters),
+        "modules": {name: m.state_dict() for name, m in modules.items()},
+        "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
+        "env_state": td.detach().to_dict(),
+        "rng": {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
+    })
+
+
+def main() -> None:
+    """Console entry point (hydra app over ``configs/``)."""
+    import hydra
+
+    @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
+    def _app(cfg: DictConfig) -> None:
+        logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+        try:
+            result = train(cfg)
+        except (ValueError, CheckpointError, FileNotFoundError) as e:
+            raise SystemExit(f"dexmots-train: {e}") from None
+        if result:
+            print(json.dumps(result))
+            print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
+                  file=sys.stderr)
+
+    _app()
+
+
+if __name__ == "__main__":
+    main()

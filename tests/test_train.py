@@ -1,0 +1,126 @@
+"""dexmots-train / dexmots-eval: run directory, checkpoints, resume determinism, bad input, torchrun."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from dexmots_rl.trainers.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from dexmots_rl.trainers.evaluate import evaluate_policy, main as eval_main, policy_from_checkpoint
+from dexmots_rl.trainers.train import CONFIG_DIR, train
+
+TINY = ["task.num_envs=4", "algo.horizon=4", "algo.critic_iterations=2", "algo.critic_minibatches=2",
+        "algo.hidden=[16]", "eval.episodes=3", "task.max_episode_steps=6", "progress=false", "checkpoint_every=1"]
+
+
+def _cfg(run_dir, *overrides):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("config", overrides=[*TINY, f"run_dir={run_dir}", *overrides])
+
+
+def _rows(run_dir):
+    rows = [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k != "wall_clock_s"} for r in rows]
+
+
+def test_train_writes_run_directory(tmp_path):
+    result = train(_cfg(tmp_path / "run", "algo.iterations=2"))
+    run = tmp_path / "run"
+    assert (run / "config.yaml").is_file() and (run / "checkpoints" / "last.pt").is_file()
+    assert json.loads((run / "metrics.json").read_text())["success_rate"] == result["success_rate"]
+    assert result["env_steps"] == 2 * 4 * 4 and result["iterations"] == 2
+    assert {"success_rate", "mean_final_error", "mean_time_to_success_s"} <= set(result)
+    rows = _rows(run)
+    assert [r["iteration"] for r in rows] == [1, 2]
+    assert all(r["reward_pose"] > 0 for r in rows)
+    assert any(p.name == "reward.csv" for p in run.rglob("*.csv"))  # torchrl CSV logger output
+
+
+def test_resume_reproduces_the_uninterrupted_run(tmp_path):
+    train(_cfg(tmp_path / "straight", "algo.iterations=4"))
+    assert train(_cfg(tmp_path / "split", "algo.iterations=4", "stop_after=2")) == {}  # no final eval yet
+    train(_cfg(tmp_path / "elsewhere", "algo.iterations=4", f"resume={tmp_path / 'split'}"))
+    straight, split = _rows(tmp_path / "straight"), _rows(tmp_path / "split")
+    assert [r["iteration"] for r in split] == [1, 2, 3, 4]
+    assert split == straight
+
+
+def test_checkpoint_round_trip_and_eval(tmp_path):
+    train(_cfg(tmp_path / "run", "algo.iterations=1"))
+    actor, data = policy_from_checkpoint(tmp_path / "run")
+    assert data["task"] == "screw_claw" and data["iteration"] == 1
+    saved = data["modules"]["actor"]
+    for key, value in actor.state_dict().items():
+        torch.testing.assert_close(value, saved[key])
+    ev = evaluate_policy(actor, data["config"]["task"], episodes=2, seed=0)
+    assert ev["episodes"] == 2 and 0.0 <= ev["success_rate"] <= 1.0
+    eval_main([str(tmp_path / "run"), "--episodes", "2"])
+    assert json.loads((tmp_path / "run" / "eval.json").read_text())["episodes"] == 2
+
+
+def test_bad_checkpoints_fail_clearly_and_overwrite_nothing(tmp_path):
+    path = tmp_path / "ckpt.pt"
+    save_checkpoint(path, {"task": "screw_claw", "algo": "shac", "iteration": 1})
+    good = path.read_bytes()
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(good[: len(good) // 2])
+    with pytest.raises(CheckpointError, match="truncated"):
+        load_checkpoint(truncated)
+    old = tmp_path / "old.pt"
+    torch.save({"format": "dexmots-checkpoint", "version": 0}, old)
+    with pytest.raises(CheckpointError, match="version"):
+        load_checkpoint(old)
+    with pytest.raises(CheckpointError, match="cube"):
+        load_checkpoint(path, task="cube")
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "missing.pt")
+    assert path.read_bytes() == good
+
+
+def test_resume_from_another_task_or_algo_is_refused(tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(run, "algo.iterations=1"))
+    before = (run / "checkpoints" / "last.pt").read_bytes()
+    with pytest.raises(CheckpointError, match="algo"):
+        train(_cfg(tmp_path / "other", "algo=ahac", "algo.iterations=2", f"resume={run}"))
+    data = torch.load(run / "checkpoints" / "last.pt", weights_only=True)
+    data["task"] = "cube"
+    save_checkpoint(run / "checkpoints" / "last.pt", {k: v for k, v in data.items() if k not in ("format", "version")})
+    with pytest.raises(CheckpointError, match="cube"):
+        train(_cfg(tmp_path / "other", "algo.iterations=2", f"resume={run}"))
+    assert (run / "checkpoints" / "last.pt").read_bytes() != before  # only our edit changed it
+
+
+def test_ahac_runs_and_records_its_horizon(tmp_path):
+    result = train(_cfg(tmp_path / "run", "algo=ahac", "algo.iterations=2", "algo.horizon=6", "algo.horizon_min=2",
+                        "algo.horizon_max=6"))
+    assert result["algo"] == "ahac"
+    assert all(2 <= r["horizon"] <= 6 for r in _rows(tmp_path / "run"))
+
+
+@pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"), ("task.action=velocity", "action"),
+                                             ("task.reward.lambda_act=-1", "lambda_act")])
+def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
+    proc = subprocess.run([sys.executable, "-m", "dexmots_rl.trainers.train", *TINY, f"run_dir={tmp_path}/r",
+                           "algo.iterations=1", override], capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("dexmots-train:") and field in last
+
+
+def test_torchrun_two_processes(tmp_path):
+    torchrun = Path(sys.executable).parent / "torchrun"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m", "dexmots_rl.trainers.train",
+                           *TINY, f"run_dir={tmp_path}/r", "algo.iterations=2"], capture_output=True, text=True,
+                          timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert result["env_steps"] == 2 * 2 * 4 * 4  # iterations x ranks x worlds x horizon
