@@ -21,7 +21,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 run: setup
-	$(VENV)/bin/dexmots-rollout --num-envs 16 --steps 100
+	$(VENV)/bin/dexmots-train
 
 test: setup
 	$(PY) -m pytest -q
@@ -29,6 +29,8 @@ test: setup
 bench: setup
 	$(VENV)/bin/dexmots-bench throughput --task screw_claw --json
 	$(VENV)/bin/dexmots-bench grad --task screw_claw --json
+	$(VENV)/bin/dexmots-bench plan --task screw_claw --json
+	$(VENV)/bin/dexmots-bench train --task screw_claw --algo shac --json
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache

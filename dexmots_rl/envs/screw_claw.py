@@ -3,7 +3,8 @@
 Per episode: the goal angle is drawn with magnitude in [pi/4, pi/2] and a random direction; the knob's
 joint damping and Coulomb friction are drawn from ``damping_range`` / ``friction_range`` (the paper's
 "object joint friction is unknown and randomized per episode"). The hand starts open (proximal joints
-spread by ``open_angle``) with a little joint noise. Success: ``|theta - theta_goal| < success_threshold``
+spread by ``open_angle``) with a little joint noise, or with ``initial="grasp"`` from a pre-sampled grasp
+(the paper initialises its claw policies from one): distal links pressed on the knob. Success: ``|theta - theta_goal| < success_threshold``
 (0.1 rad); evaluation reads it at the last step of the episode.
 
 Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
@@ -49,6 +50,8 @@ from .rewards import (
 __all__ = ["ScrewClawEnv"]
 
 KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
+# hand joints (right prox, right distal, left prox, left distal); "open" uses open_angle
+INITIAL_POSES = {"open": None, "grasp": (0.5, -0.6, -0.5, 0.6)}
 
 
 class ScrewClawEnv(DexEnv):
@@ -72,6 +75,7 @@ class ScrewClawEnv(DexEnv):
         joint_noise: float = 0.05,
         success_threshold: float = 0.1,
         ramp_steps: int = 60,
+        initial: str = "open",
         reward: RewardCoefficients | dict | None = None,
         pose_scale: float = 0.5,
         torque_scale: float = 1.0,
@@ -79,6 +83,8 @@ class ScrewClawEnv(DexEnv):
     ):
         if not (len(goal_range) == 2 and 0 <= goal_range[0] <= goal_range[1]):
             raise ValueError(f"goal_range must be (low, high) with 0 <= low <= high, got {goal_range!r}")
+        if initial not in INITIAL_POSES:
+            raise ValueError(f"initial must be one of {', '.join(INITIAL_POSES)}, got {initial!r}")
         if ramp_steps < 1:
             raise ValueError(f"ramp_steps must be >= 1, got {ramp_steps}")
         if not (pose_scale > 0 and torque_scale > 0):
@@ -91,7 +97,8 @@ class ScrewClawEnv(DexEnv):
                          action=action, max_episode_steps=max_episode_steps, seed=seed, damping_range=damping_range,
                          friction_range=friction_range, **kwargs)
         # joint order in the MJCF: right proximal, right distal, left proximal, left distal
-        self._open_pose = torch.tensor([open_angle, 0.0, -open_angle, 0.0], dtype=self.dtype, device=self.device)
+        start = [open_angle, 0.0, -open_angle, 0.0] if initial == "open" else INITIAL_POSES["grasp"]
+        self._open_pose = torch.tensor(start, dtype=self.dtype, device=self.device)
         scene = self.sim.scene
 
         def t(x):

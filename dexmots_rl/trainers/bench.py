@@ -1,8 +1,9 @@
 """``dexmots-bench``: simulator throughput against MuJoCo, and gradient quality against finite differences.
 
-    dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda]
+    dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6]
     dexmots-bench plan --task screw_claw --json [--iterations 200]
+    dexmots-bench train --task screw_claw --algo shac --json [hydra overrides ...]
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
@@ -44,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-time", type=float, default=1.0, help="seconds of timed work per number")
     p.add_argument("--settle-steps", type=int, default=20, help="env steps from the open pose into contact")
     p.add_argument("--chunk-steps", type=int, default=16, help="env steps per timed chunk (from the contact state)")
+    p.add_argument("--obs", default="state", choices=["state", "rgb"],
+                   help="rgb: also render a 64x64 image of every world after each step (ours only)")
 
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
     common(p)
@@ -57,6 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="wrench planning through the simulator: tracking-error reduction")
     common(p)
     p.add_argument("--iterations", type=int, default=200)
+
+    p = sub.add_parser("train", help="train from scratch with dexmots-train's defaults, evaluate, time it")
+    common(p)
+    p.add_argument("--algo", default="shac", choices=["shac", "ahac"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--run-dir", default=None, help="default: runs/bench_<task>_<algo>_seed<seed>")
+    p.add_argument("overrides", nargs="*", help="extra hydra overrides, e.g. algo.iterations=300")
     return parser
 
 
@@ -103,7 +113,9 @@ def _execute(args: argparse.Namespace) -> dict:
             from .bench_throughput import run_throughput
 
             return run_throughput(args.task, args.num_envs, args.device, args.substeps, args.min_time,
-                                  args.settle_steps, args.chunk_steps)
+                                  args.settle_steps, args.chunk_steps, obs=args.obs)
+        if args.bench == "train":
+            return _train_bench(args)
         if args.bench == "plan":
             from .plan import run_plan_bench
 
@@ -114,6 +126,23 @@ def _execute(args: argparse.Namespace) -> dict:
                           args.device)
         result["goals"], result["goals_met"] = dict(GOALS), _grad_goals(result)
         return result
+
+
+def _train_bench(args: argparse.Namespace) -> dict:
+    from hydra import compose, initialize_config_dir
+
+    from .train import CONFIG_DIR, train
+
+    run_dir = args.run_dir or f"runs/bench_{args.task}_{args.algo}_seed{args.seed}"
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={args.seed}",
+                                           f"device={args.device}", f"run_dir={run_dir}", "progress=false",
+                                           *args.overrides])
+    result = train(cfg)
+    return {"task": args.task, "algo": args.algo, "success_rate": result["success_rate"],
+            "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
+            "mean_final_error": result["mean_final_error"], "goal_success_rate": 0.9,
+            "learning_curve": f"{run_dir}/metrics.jsonl"}
 
 
 def main(argv: list[str] | None = None) -> None:

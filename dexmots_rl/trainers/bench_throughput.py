@@ -10,6 +10,9 @@ step is ``substeps`` physics steps of the MJCF's timestep.
 * ``fwdbwd``: each step's ``joint_q`` requires grad; step, then backward of the sum of all outputs.
 * ``mujoco``: ``mujoco.rollout.Rollout`` over N copies of the same ``MjModel`` (CPU, one thread per core,
   the calling thread alone for one world), ``nstep = substeps * chunk_steps``.
+
+With ``obs="rgb"`` our ``fwd``/``fwdbwd`` chunks also render a 64x64 image of every world after each
+step (:class:`dexmots_rl.sim.render.Renderer`); MuJoCo's rows stay physics only.
 """
 
 from __future__ import annotations
@@ -31,11 +34,13 @@ class SimBench:
     """Our simulator with ``num_envs`` worlds, settled into contact, ready to time."""
 
     def __init__(self, scene, task, num_envs: int, device: str, substeps: int, settle_steps: int,
-                 chunk_steps: int):
+                 chunk_steps: int, obs: str = "state"):
         from ..sim import Control, Simulator
+        from ..sim.render import Renderer
 
         self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps)
         self.chunk_steps = chunk_steps
+        self.renderer = Renderer(scene, 64, 64, device=device) if obs == "rgb" else None
         opts = dict(dtype=sim.dtype, device=sim.torch_device)
         gear = torch.as_tensor(scene.actuator_gear, **opts)
         tau = (torch.tensor(task.close_action, **opts) * gear).expand(num_envs, sim.nu).contiguous()
@@ -57,11 +62,16 @@ class SimBench:
             touching += (out.contact_force > 0).double().mean().item()
         return touching / self.chunk_steps
 
+    def _observe(self, q) -> None:
+        if self.renderer is not None:
+            self.renderer.render_state(self.sim, q)
+
     def forward_chunk(self) -> int:
         q, qd = self.q0, self.qd0
         for _ in range(self.chunk_steps):
             out = self.sim.step(q, qd, self.control, self.params)
             q, qd = out.joint_q, out.joint_qd
+            self._observe(q)
         return self.chunk_steps * self.sim.num_worlds
 
     def forward_backward_chunk(self) -> int:
@@ -71,6 +81,7 @@ class SimBench:
             out = self.sim.step(q, qd, self.control, self.params)
             sum(t.sum() for t in out).backward()
             q, qd = out.joint_q.detach(), out.joint_qd.detach()
+            self._observe(q)
         return self.chunk_steps * self.sim.num_worlds
 
 
@@ -125,7 +136,7 @@ class MujocoBench:
 
 
 def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: str = "cpu", substeps: int = 16,
-                   min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16) -> dict:
+                   min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16, obs: str = "state") -> dict:
     """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``."""
     setup = bench_task(task)
     scene, path = load_task_scene(task)
@@ -133,7 +144,7 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
     rows = []
     for n in num_envs:
         log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
-        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps)
+        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs)
         mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps)
         row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
                "mujoco_contact_fraction": mj.contact_fraction()}
@@ -149,4 +160,4 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
         rows.append({k: row[k] for k in ("num_envs", "fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s",
                                          "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction")})
     return {"task": task, "device": device_name(device), "dt": float(ours.sim.sub_dt), "substeps": substeps,
-            "rows": rows}
+            "obs": obs, "rows": rows}
