@@ -36,11 +36,14 @@ class SimBench:
     def __init__(self, scene, task, num_envs: int, device: str, substeps: int, settle_steps: int,
                  chunk_steps: int, obs: str = "state"):
         from ..sim import Control, Simulator
-        from ..sim.render import Renderer
 
         self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps)
         self.chunk_steps = chunk_steps
-        self.renderer = Renderer(scene, 64, 64, device=device) if obs == "rgb" else None
+        self.renderer = None
+        if obs == "rgb":
+            from ..sim.render import Renderer
+
+            self.renderer = Renderer(scene, 64, 64, device=device)
         opts = dict(dtype=sim.dtype, device=sim.torch_device)
         gear = torch.as_tensor(scene.actuator_gear, **opts)
         tau = (torch.tensor(task.close_action, **opts) * gear).expand(num_envs, sim.nu).contiguous()

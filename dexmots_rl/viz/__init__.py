@@ -1,0 +1,1 @@
+"""Visualisation: matplotlib figures (:mod:`.plots`: objective landscape, learning curves)."""
