@@ -44,13 +44,14 @@ from __future__ import annotations
 import logging
 import math
 import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict import TensorDict
+
+from ..atomic import atomic_torch_save
 
 __all__ = [
     "FORMAT_NAME",
@@ -272,32 +273,7 @@ class PoseWrenchTrajectory:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically: a temp file beside ``path``, fsync, then ``os.replace`` over the target."""
-        path = Path(path)
-        payload = self.state_dict()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(payload, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            raise
-        # persist the rename itself; not possible on every platform, so best effort
-        try:
-            dir_fd = os.open(path.parent, os.O_RDONLY)
-        except OSError:
-            return
-        try:
-            os.fsync(dir_fd)
-        except OSError:
-            logger.debug("could not fsync directory %s", path.parent)
-        finally:
-            os.close(dir_fd)
+        atomic_torch_save(self.state_dict(), path)
 
     @classmethod
     def from_state_dict(cls, data: Any, source: str = "<dict>") -> PoseWrenchTrajectory:
