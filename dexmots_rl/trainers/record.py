@@ -1,0 +1,168 @@
+"""``dexmots-record``: record episodes of a task to an MCAP file (Foxglove, ``dexmots-view``).
+
+    dexmots-record task=screw_claw episodes=2 out=run.mcap                 # scripted policy, 4 worlds
+    dexmots-record task=screw_claw policy=random num_envs=8 steps=50 out=random.mcap
+    dexmots-record checkpoint=runs/screw_claw_shac_seed0 episodes=3 out=trained.mcap
+    dexmots-record task=screw_claw episodes=20 live=true out=live.mcap     # + dexmots-view live.mcap --live
+
+Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),
+``out`` (run.mcap), ``num_envs`` (4), ``steps`` (100; with a checkpoint, the task's episode length),
+``seed`` (0), ``device`` (cpu), ``policy`` (``scripted`` — the grasp-and-twist controller of
+:mod:`.rollout`, screw_claw only — or ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
+or run directory: its task config builds the env and its actor acts deterministically) and ``live``
+(rewrite the file after every episode). Every episode is a reset followed by ``steps`` steps in every
+world; the summary is printed as one JSON line.
+
+Example:
+    >>> import os, tempfile
+    >>> out = os.path.join(tempfile.mkdtemp(), "run.mcap")
+    >>> summary = run(["task=screw_claw", "episodes=1", "num_envs=2", "steps=3", f"out={out}"])
+    >>> summary["frames"], summary["num_worlds"]
+    (4, 2)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from ..envs import make_env
+from .rollout import scripted_claw_action
+
+__all__ = ["DEFAULTS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
+
+log = logging.getLogger(__name__)
+
+DEFAULTS = {"task": "screw_claw", "episodes": 1, "out": "run.mcap", "num_envs": 4, "steps": None, "seed": 0,
+            "device": "cpu", "policy": "scripted", "checkpoint": None, "live": False}
+POLICIES = ("scripted", "random")
+
+
+def parse_overrides(tokens: list[str]) -> dict:
+    """``["key=value", ...]`` -> the options dict (types from :data:`DEFAULTS`); unknown keys are errors."""
+    opts = dict(DEFAULTS)
+    for token in tokens:
+        key, sep, value = token.removeprefix("--").partition("=")
+        key = key.replace("-", "_")
+        if not sep or key not in DEFAULTS:
+            raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)}")
+        if key in ("episodes", "num_envs", "steps", "seed"):
+            try:
+                opts[key] = int(value)
+            except ValueError:
+                raise ValueError(f"{key} must be an integer, got {value!r}") from None
+            if opts[key] < (0 if key == "seed" else 1):
+                raise ValueError(f"{key} must be positive, got {value}")
+        elif key == "live":
+            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(f"live must be true or false, got {value!r}")
+            opts[key] = value.lower() in ("true", "1", "yes")
+        else:
+            opts[key] = value
+    if opts["policy"] not in POLICIES:
+        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {opts['policy']!r}")
+    return opts
+
+
+def _load_checkpoint_module():
+    try:
+        from . import checkpoint, evaluate
+    except ImportError as exc:  # the training stack is not there (or broken): say so, not a bare traceback
+        raise RuntimeError(f"loading a checkpoint needs dexmots_rl.trainers.checkpoint and .evaluate ({exc})") from exc
+    return checkpoint, evaluate
+
+
+def env_from_checkpoint(path: str | Path, num_envs: int, seed: int = 0, device="cpu", steps: int | None = None):
+    """``(env, checkpoint dict)``: a non-differentiable env built from the checkpoint's task config."""
+    checkpoint, evaluate = _load_checkpoint_module()
+    path = Path(path)
+    data = checkpoint.load_checkpoint(checkpoint.latest_checkpoint(path) if path.is_dir() else path)
+    task_cfg = dict(data["config"]["task"])
+    if steps is not None:
+        task_cfg["max_episode_steps"] = steps
+    return evaluate.make_task_env(task_cfg, num_envs, differentiable=False, seed=seed, device=device), data
+
+
+def policy_from_checkpoint(path: str | Path, env):
+    """Hook: the actor saved in a ``dexmots-train`` checkpoint (file or run directory), ready to act in ``env``.
+
+    Imports :mod:`dexmots_rl.trainers.checkpoint` / ``.evaluate`` lazily (a clear ``RuntimeError`` if they
+    are missing). Run it under ``set_exploration_type(DETERMINISTIC)`` for the mean action. Raises
+    ``ValueError`` when the actor does not fit ``env``'s observation (build ``env`` with
+    :func:`env_from_checkpoint`).
+    """
+    _, evaluate = _load_checkpoint_module()
+    actor, _ = evaluate.policy_from_checkpoint(path, device=env.device)
+    try:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            actor(env.reset())
+    except RuntimeError as exc:
+        raise ValueError(f"the policy in {path} does not fit this env's observation ({exc}); build the env "
+                         "from the checkpoint's task config (env_from_checkpoint)") from None
+    return actor
+
+
+def _policy(opts: dict, env):
+    if opts["checkpoint"]:
+        return policy_from_checkpoint(opts["checkpoint"], env)
+    if opts["policy"] == "random":
+        return None
+    if opts["task"] != "screw_claw":
+        raise ValueError(f"policy=scripted exists for screw_claw only; use policy=random for {opts['task']!r}")
+    return TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
+
+
+def run(argv: list[str] | None = None) -> dict:
+    """Parse ``key=value`` tokens, record, return (and print) the summary."""
+    from ..viz import EpisodeRecorder
+
+    opts = parse_overrides(list(sys.argv[1:] if argv is None else argv))
+    if opts["checkpoint"]:
+        env, data = env_from_checkpoint(opts["checkpoint"], opts["num_envs"], opts["seed"], opts["device"],
+                                        opts["steps"])
+        opts["task"] = data.get("task", opts["task"])
+    else:
+        env = make_env(opts["task"], num_envs=opts["num_envs"], device=opts["device"], differentiable=False,
+                       seed=opts["seed"], max_episode_steps=opts["steps"] or 100)
+    steps = opts["steps"] or env.base_env.max_episode_steps
+    policy = _policy(opts, env)
+    rewards, successes = [], []
+    with EpisodeRecorder(opts["out"], env, live=opts["live"], task=opts["task"]) as rec:
+        for episode in range(opts["episodes"]):
+            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+                rollout = env.rollout(steps, policy, tensordict=env.reset(), auto_reset=False,
+                                      break_when_any_done=False)
+            rec.record_rollout(rollout)
+            rewards.append(float(rollout["next", "reward"].mean()))
+            successes.append(float(rollout["next", "success"][:, -1].float().mean()))
+            log.info("episode %d: mean reward %.3f, final success %.2f", episode, rewards[-1], successes[-1])
+        frames = rec.num_frames
+    summary = {"out": str(opts["out"]), "task": opts["task"], "episodes": opts["episodes"],
+               "num_worlds": opts["num_envs"], "steps": steps, "frames": frames,
+               "policy": "checkpoint" if opts["checkpoint"] else opts["policy"],
+               "mean_reward": sum(rewards) / len(rewards), "final_success_rate": sum(successes) / len(successes)}
+    return summary
+
+
+def main(argv: list[str] | None = None) -> None:
+    if argv is None and any(a in ("-h", "--help") for a in sys.argv[1:]):
+        argparse.ArgumentParser(prog="dexmots-record", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter).print_help()
+        return
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+    try:
+        summary = run(argv)
+    except (ValueError, RuntimeError, OSError) as exc:
+        raise SystemExit(f"dexmots-record: {exc}") from None
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

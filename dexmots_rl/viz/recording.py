@@ -1,0 +1,111 @@
+"""The DexMOTS recording format: an MCAP file (zstd chunks) that Foxglove opens as it is.
+
+=====================  ==========================  ====================================================
+topic                  schema (encoding)           content
+=====================  ==========================  ====================================================
+``/tf``                ``foxglove.FrameTransforms``  every frame: ``world`` -> ``world{w}`` (the world's
+                       (protobuf)                    place in the grid), ``world{w}`` -> ``world{w}/link{i}``
+                                                     (hand links), ``world{w}/object`` and
+                                                     ``world{w}/goal`` (the object at its goal pose)
+``/scene``             ``foxglove.SceneUpdate``      once: frame-locked entities ``world{w}/link{i}``
+                       (protobuf)                    (spheres + cylinders; metadata ``geometry`` holds them
+                                                     exactly as JSON), ``world{w}/object`` (triangle mesh),
+                                                     ``world{w}/goal`` (the same mesh, translucent)
+``/scene/wrench``      ``foxglove.SceneUpdate``      every frame: arrows at the object, in ``world{w}``:
+                                                     actual / target force and torque
+``/dexmots/step``      ``dexmots.Step`` (JSON)       every frame: ``frame``, ``episode``, ``time`` and per
+                                                     world lists: ``reward``, ``success``, ``step``,
+                                                     ``object_q``, ``wrench``, ``target_wrench``, ``goal``,
+                                                     ``hand_q``, ``joint_q``, ``reward_terms.{name}``
+=====================  ==========================  ====================================================
+
+An MCAP metadata record ``dexmots`` holds ``format``, ``version``, ``task``, ``num_worlds``,
+``num_frames``, ``dt``, ``dtype``, ``body_names`` (JSON), ``world_offsets`` (JSON), ``start_time_ns`` and
+the arrow scales ``force_scale`` / ``torque_scale``. A frame's log time is ``start_time_ns + frame * dt``;
+episodes follow each other on one timeline (``episode`` says which). Poses are position + ``wxyz`` quaternion
+(Foxglove's ``xyzw`` on ``/tf``); float values go through float64 (protobuf doubles, JSON ``repr``), so
+a float32 recording reads back bit-exact. In Foxglove: a 3D panel (fixed frame ``world``) and a Plot
+panel on ``/dexmots/step.reward[0]`` etc.
+
+Example:
+    >>> RecordingFormatError("bad.mcap: not an MCAP file").args[0]
+    'bad.mcap: not an MCAP file'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from tensordict import TensorDict
+
+from .geometry import SceneGeometry
+
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "TF_TOPIC", "SCENE_TOPIC", "WRENCH_TOPIC", "STEP_TOPIC", "ROOT_FRAME",
+           "STEP_SCHEMA", "RecordingFormatError", "Recording", "world_frame", "body_frame"]
+
+FORMAT_NAME = "dexmots-recording"
+FORMAT_VERSION = 1
+TF_TOPIC, SCENE_TOPIC, WRENCH_TOPIC, STEP_TOPIC = "/tf", "/scene", "/scene/wrench", "/dexmots/step"
+ROOT_FRAME = "world"
+STEP_SCHEMA_NAME = "dexmots.Step"
+_LIST = {"type": "array", "items": {"type": "number"}}
+_LISTS = {"type": "array", "items": _LIST}
+STEP_SCHEMA = {
+    "title": STEP_SCHEMA_NAME,
+    "type": "object",
+    "properties": {
+        "frame": {"type": "integer"},
+        "episode": {"type": "integer"},
+        "time": {"type": "number", "description": "seconds since the recording started"},
+        "reward": _LIST, "success": {"type": "array", "items": {"type": "boolean"}},
+        "step": {"type": "array", "items": {"type": "integer"}},
+        "object_q": _LISTS, "wrench": _LISTS, "target_wrench": _LISTS, "goal": _LISTS, "hand_q": _LISTS,
+        "joint_q": _LISTS,
+        "reward_terms": {"type": "object", "additionalProperties": _LIST},
+    },
+}
+
+
+class RecordingFormatError(ValueError):
+    """A recording that is missing, truncated, corrupted, or not a DexMOTS recording."""
+
+
+def world_frame(w: int) -> str:
+    return f"{ROOT_FRAME}{w}"
+
+
+def body_frame(w: int, body: int, num_bodies: int) -> str:
+    """``world{w}/link{i}`` for hand links, ``world{w}/object`` for the last body."""
+    return f"{world_frame(w)}/object" if body == num_bodies - 1 else f"{world_frame(w)}/link{body}"
+
+
+@dataclasses.dataclass
+class Recording:
+    """A recording read back by :func:`~dexmots_rl.viz.read_recording`.
+
+    ``frames`` is a TensorDict of batch ``[F, N]`` (frames x worlds) with ``"body_pose"`` [F, N, B, 7],
+    ``"goal_pose"`` [F, N, 7], ``"reward"``, ``"success"``, ``("task", "step")``, ``("object", "q")``,
+    ``("object", "wrench")``, ``"target_wrench"``, ``("task", "goal")``, ``("hand", "q")``,
+    ``("sim", "joint_q")`` and ``("reward_terms", name)``. ``episode`` [F] and ``time`` [F] (seconds)
+    index the timeline; ``world_offsets`` [N, 3] is where each world is drawn.
+    """
+
+    meta: dict
+    geometry: SceneGeometry
+    frames: TensorDict
+    episode: torch.Tensor
+    time: torch.Tensor
+    world_offsets: torch.Tensor
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.frames.batch_size[0])
+
+    @property
+    def num_worlds(self) -> int:
+        return int(self.frames.batch_size[1])
+
+    @property
+    def reward_terms(self) -> list[str]:
+        return sorted(self.frames["reward_terms"].keys()) if "reward_terms" in self.frames.keys() else []
