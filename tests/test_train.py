@@ -124,3 +124,12 @@ def test_torchrun_two_processes(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert result["env_steps"] == 2 * 2 * 4 * 4  # iterations x ranks x worlds x horizon
+
+
+def test_training_evaluation_records_a_live_mcap(tmp_path):
+    from dexmots_rl.viz import read_recording
+
+    train(_cfg(tmp_path / "run", "algo.iterations=2", "eval.every=1", "eval.record=true"))
+    rec = read_recording(tmp_path / "run" / "eval.mcap")
+    assert rec.frames.batch_size[1] == 3  # eval.episodes=3 worlds (fewer than record_worlds)
+    assert int(rec.episode.max()) == 1  # two evaluations: after iteration 1 and the final one

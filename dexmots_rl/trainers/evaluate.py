@@ -2,6 +2,7 @@
 
     dexmots-eval runs/screw_claw_shac_seed0                       # its checkpoints/last.pt, 100 episodes
     dexmots-eval runs/screw_claw_shac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
+    dexmots-eval runs/screw_claw_shac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
 
 Every episode is one world of a non-differentiable env built from the checkpoint's task config, run for
 ``max_episode_steps`` steps with the deterministic policy (the tanh of the Gaussian's mean). Success is
@@ -51,13 +52,19 @@ def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, devi
     for key in ("damping_range", "friction_range"):
         if key in kwargs:
             kwargs[key] = tuple(kwargs[key])
-    return make_env(cfg["name"], num_envs=num_envs, device=device, differentiable=differentiable, seed=seed,
-                    **kwargs)
+    env = make_env(cfg["name"], num_envs=num_envs, device=device, differentiable=differentiable, seed=seed,
+                   **kwargs)
+    env._dexmots_task_cfg = cfg  # what built it (recording rebuilds a smaller copy)
+    return env
 
 
 @torch.no_grad()
-def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, device="cpu") -> dict:
-    """Success rate, mean final error and mean time to success over ``episodes`` deterministic episodes."""
+def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, device="cpu", record=None,
+                    record_worlds: int = 8, live: bool = False) -> dict:
+    """Success rate, mean final error and mean time to success over ``episodes`` deterministic episodes.
+
+    ``record``: an MCAP path; the first ``record_worlds`` episodes are written there (``live``: the file is
+    rewritten after every evaluation, for ``dexmots-view --live``; see :mod:`dexmots_rl.viz`)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = make_task_env(task_cfg, episodes, differentiable=False, seed=seed, device=device)
@@ -65,6 +72,8 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(base.max_episode_steps, actor, auto_reset=False, break_when_any_done=False,
                               tensordict=env.reset())
+    if record is not None:
+        _record(env, rollout, record, record_worlds, live)
     nxt = rollout.get("next")
     success = nxt.get("success").squeeze(-1)  # [N, T]
     final_error = (nxt.get("achieved_goal")[:, -1] - nxt.get(("task", "goal"))[:, -1]).norm(dim=-1)
@@ -78,6 +87,27 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         "mean_time_to_success_s": float(tts.mean()) if won.any() else float("nan"),
         "sim_failures": int(nxt.get(("info", "sim_failures"))[:, -1].sum()),
     }
+
+
+_LIVE_RECORDERS: dict = {}
+
+
+def _record(env, rollout, path, worlds: int, live: bool) -> None:
+    from ..viz import EpisodeRecorder
+
+    worlds = min(worlds, rollout.shape[0])
+    small = make_task_env(_task_cfg_of(env), worlds, differentiable=False, seed=0)
+    if live:  # one recorder per file, so the viewer sees every evaluation as a new episode
+        rec = _LIVE_RECORDERS.get(str(path)) or EpisodeRecorder(path, small, live=True)
+        _LIVE_RECORDERS[str(path)] = rec
+        rec.record_rollout(rollout[:worlds])
+        return
+    with EpisodeRecorder(path, small) as rec:
+        rec.record_rollout(rollout[:worlds])
+
+
+def _task_cfg_of(env) -> dict:
+    return env._dexmots_task_cfg
 
 
 def policy_from_checkpoint(path, device="cpu"):
@@ -103,6 +133,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default=None, help="JSON file (default: <run dir>/eval.json)")
+    p.add_argument("--record", default=None, help="also write the first --record-worlds episodes to this MCAP file")
+    p.add_argument("--record-worlds", type=int, default=8)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     from .checkpoint import CheckpointError
@@ -110,7 +142,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         actor, data = policy_from_checkpoint(args.checkpoint, args.device)
         result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
-                  **evaluate_policy(actor, data["config"]["task"], args.episodes, args.seed, args.device)}
+                  **evaluate_policy(actor, data["config"]["task"], args.episodes, args.seed, args.device,
+                                     record=args.record, record_worlds=args.record_worlds)}
     except (CheckpointError, ValueError) as e:
         raise SystemExit(f"dexmots-eval: {e}") from None
     src = Path(args.checkpoint)

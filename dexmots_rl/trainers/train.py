@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import sys
 import time
 import warnings
@@ -161,19 +160,24 @@ def train(cfg: DictConfig) -> dict:
             if last or counters["iteration"] % cfg.checkpoint_every == 0:
                 _save(run_dir, cfg, counters, modules, optimizers, td, env)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
-                ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device)
+                ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
                 _log_row(logger, run_dir, {"iteration": counters["iteration"],
                                            **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
     bar.close()
     result = {}
     if dist.is_main and counters["iteration"] == iterations:
-        ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device)
+        ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
                   "skipped_updates": counters["skipped_updates"], "run_dir": str(run_dir)}
         (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
     dist.close()
     return result
+
+
+def _rec(cfg, run_dir: Path) -> dict:
+    """Evaluation recording options: ``<run_dir>/eval.mcap``, rewritten after every evaluation (live)."""
+    return {"record": run_dir / "eval.mcap", "live": True} if cfg.eval.record else {}
 
 
 def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist) -> dict:

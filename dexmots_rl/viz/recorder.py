@@ -25,7 +25,6 @@ import json
 import logging
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
+from ..atomic import atomic_write
 from .geometry import GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, scene_geometry
 from .recording import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
                         WRENCH_TOPIC, body_frame, world_frame)
@@ -167,18 +167,7 @@ class EpisodeRecorder:
         """Write everything recorded so far to ``path`` atomically."""
         if not self._messages:
             raise RuntimeError(f"nothing recorded for {self.path}")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                self._write(f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        atomic_write(self.path, self._write)
         log.info("wrote %s (%d frames, %d worlds)", self.path, self.num_frames, self.num_worlds)
         return self.path
 
