@@ -90,20 +90,12 @@ class PointMassEnv(EnvBase):
         # Partial resets: torchrl's rollout hands _reset only the "_reset" mask and merges the fresh worlds
         # into the running TensorDict itself (TensorDict.where), so fresh values for every world suffice.
         false = torch.zeros(n, 1, dtype=torch.bool)
-        return TensorDict(
-            {
-                "observation": self._obs(pos, vel, goal),
-                "pos": pos,
-                "vel": vel,
-                "goal": goal,
-                "step_count": step,
-                ("object", "contact_force"): contact,
-                "done": false,
-                "terminated": false.clone(),
-                "truncated": false.clone(),
-            },
-            batch_size=[n],
-        )
+        return self._state(pos, vel, goal, step, contact, done=false, terminated=false.clone(), truncated=false.clone())
+
+    def _state(self, pos, vel, goal, step, contact, **extra) -> TensorDict:
+        entries = {"observation": self._obs(pos, vel, goal), "pos": pos, "vel": vel, "goal": goal,
+                   "step_count": step, ("object", "contact_force"): contact, **extra}
+        return TensorDict(entries, batch_size=[pos.shape[0]])
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         pos, vel, goal = tensordict.get("pos"), tensordict.get("vel"), tensordict.get("goal")
@@ -118,18 +110,5 @@ class PointMassEnv(EnvBase):
         step = tensordict.get("step_count") + 1
         terminated = pos.detach().norm(dim=-1, keepdim=True) > self.terminate_radius
         truncated = (step >= self.max_episode_steps) & ~terminated
-        return TensorDict(
-            {
-                "observation": self._obs(pos, vel, goal),
-                "pos": pos,
-                "vel": vel,
-                "goal": goal,
-                "step_count": step,
-                ("object", "contact_force"): wall_force.norm(dim=-1, keepdim=True),
-                "reward": reward,
-                "done": terminated | truncated,
-                "terminated": terminated,
-                "truncated": truncated,
-            },
-            batch_size=[self.num_envs],
-        )
+        return self._state(pos, vel, goal, step, wall_force.norm(dim=-1, keepdim=True), reward=reward,
+                           done=terminated | truncated, terminated=terminated, truncated=truncated)

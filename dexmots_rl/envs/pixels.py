@@ -32,14 +32,15 @@ import math
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Bounded, Composite
-from torchrl.envs import Transform
+
+from .transforms import StateTransform
 
 __all__ = ["RGBObservation", "tile_images"]
 
 log = logging.getLogger(__name__)
 
 
-class RGBObservation(Transform):
+class RGBObservation(StateTransform):
     """Render ``("sim", "joint_q")`` into ``out_key`` (default ``"pixels"``), ``uint8 [N, H, W, 3]``.
 
     Args:
@@ -94,12 +95,6 @@ class RGBObservation(Transform):
         pixels = self.render(joint_q)
         td.set(self.out_keys[0], pixels if td.device is None else pixels.to(td.device))
         return td
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        return self._call(td)
-
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch = observation_spec.shape

@@ -31,7 +31,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import CatTensors, Compose, FlattenObservation, Transform
 
-__all__ = ["GOAL_MODES", "POLICY_KEYS", "GoalConditioning", "observation_transform"]
+__all__ = ["GOAL_MODES", "POLICY_KEYS", "GoalConditioning", "StateTransform", "observation_transform"]
 
 GOAL_MODES = ("pose", "pose_traj", "pose_wrench")
 
@@ -46,7 +46,18 @@ POLICY_KEYS = [
 ]
 
 
-class GoalConditioning(Transform):
+class StateTransform(Transform):
+    """A transform that computes its outputs from several entries of the whole TensorDict (so it has no
+    per-key ``_apply_transform``): ``_call`` serves steps, resets and direct calls alike."""
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        return self._call(td)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+
+class GoalConditioning(StateTransform):
     """Write ``"desired_goal"`` for one of :data:`GOAL_MODES` (see the module docstring)."""
 
     def __init__(self, mode: str = "pose", horizon: int = 8):
@@ -84,13 +95,6 @@ class GoalConditioning(Transform):
     def _call(self, td: TensorDictBase) -> TensorDictBase:
         td.set("desired_goal", self._goal(td))
         return td
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        # the goal depends on several entries at once, so there is no per-key _apply_transform
-        return self._call(td)
-
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         old = observation_spec["desired_goal"]

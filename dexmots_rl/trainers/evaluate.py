@@ -52,10 +52,8 @@ def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, devi
     for key in ("damping_range", "friction_range"):
         if key in kwargs:
             kwargs[key] = tuple(kwargs[key])
-    env = make_env(cfg["name"], num_envs=num_envs, device=device, differentiable=differentiable, seed=seed,
-                   **kwargs)
-    env._dexmots_task_cfg = cfg  # what built it (recording rebuilds a smaller copy)
-    return env
+    return make_env(cfg["name"], num_envs=num_envs, device=device, differentiable=differentiable, seed=seed,
+                    **kwargs)
 
 
 @torch.no_grad()
@@ -73,7 +71,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         rollout = env.rollout(base.max_episode_steps, actor, auto_reset=False, break_when_any_done=False,
                               tensordict=env.reset())
     if record is not None:
-        _record(env, rollout, record, record_worlds, live)
+        _record(task_cfg, rollout, record, record_worlds, live)
     nxt = rollout.get("next")
     success = nxt.get("success").squeeze(-1)  # [N, T]
     final_error = (nxt.get("achieved_goal")[:, -1] - nxt.get(("task", "goal"))[:, -1]).norm(dim=-1)
@@ -92,11 +90,12 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
 _LIVE_RECORDERS: dict = {}
 
 
-def _record(env, rollout, path, worlds: int, live: bool) -> None:
+def _record(task_cfg, rollout, path, worlds: int, live: bool) -> None:
     from ..viz import EpisodeRecorder
 
     worlds = min(worlds, rollout.shape[0])
-    small = make_task_env(_task_cfg_of(env), worlds, differentiable=False, seed=0)
+    # the recorder needs an env of exactly the recorded worlds (scene geometry, references)
+    small = make_task_env(task_cfg, worlds, differentiable=False, seed=0)
     if live:  # one recorder per file, so the viewer sees every evaluation as a new episode
         rec = _LIVE_RECORDERS.get(str(path)) or EpisodeRecorder(path, small, live=True)
         _LIVE_RECORDERS[str(path)] = rec
@@ -104,10 +103,6 @@ def _record(env, rollout, path, worlds: int, live: bool) -> None:
         return
     with EpisodeRecorder(path, small) as rec:
         rec.record_rollout(rollout[:worlds])
-
-
-def _task_cfg_of(env) -> dict:
-    return env._dexmots_task_cfg
 
 
 def policy_from_checkpoint(path, device="cpu"):

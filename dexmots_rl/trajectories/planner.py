@@ -105,9 +105,10 @@ def _scene_of(task):
 
 
 def _as_batch(name: str, x, nq: int, dtype) -> torch.Tensor:
-    t = torch.as_tensor(x, dtype=dtype).reshape(-1, nq) if not isinstance(x, torch.Tensor) or x.dim() < 2 else x
-    t = t.to(dtype)
-    if t.shape[-1] != nq:
+    t = torch.as_tensor(x, dtype=dtype)
+    if t.dim() < 2 and t.numel() % nq == 0:
+        t = t.reshape(-1, nq)
+    if t.dim() != 2 or t.shape[-1] != nq:
         raise ValueError(f"{name} must hold {nq} object coordinates per world, got shape {tuple(t.shape)}")
     if not torch.isfinite(t).all():
         raise ValueError(f"{name} must be finite")
