@@ -54,7 +54,7 @@ def test_check_env_specs(differentiable):
 
 def test_observation_and_state_keys(env):
     td = env.reset()
-    assert td["observation"].shape == (N, 17)
+    assert td["observation"].shape == (N, 18)
     assert td["sim", "joint_q"].shape == (N, 5) and td["sim", "joint_qd"].shape == (N, 5)
     assert td["sim", "params"].shape == (N, 2)
     assert td["fingertips", "pos"].shape == (N, 2, 3)

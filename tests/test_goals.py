@@ -16,13 +16,14 @@ from simutil import CLAW_CONTACT_Q
 N, H = 3, 4
 
 
-@pytest.mark.parametrize("goal, width", [("pose", 1), ("pose_traj", H), ("pose_wrench", 2 * H)])
-def test_goal_modes_have_documented_shapes_and_pass_spec_checks(goal, width):
+@pytest.mark.parametrize("goal, width, error_width", [("pose", 1, 1), ("pose_traj", H, H), ("pose_wrench", 2 * H, H)])
+def test_goal_modes_have_documented_shapes_and_pass_spec_checks(goal, width, error_width):
     env = make_env("screw_claw", num_envs=N, goal=goal, goal_horizon=H, seed=0)
     check_env_specs(env, seed=0)
     td = env.reset()
     assert td["desired_goal"].shape == (N, width)
-    assert td["observation"].shape == (N, 16 + width)
+    assert td["goal_error"].shape == (N, error_width)
+    assert td["observation"].shape == (N, 16 + width + error_width)
     assert td["task", "goal"].shape == (N, 1)  # the env's own goal is untouched
 
 
@@ -42,6 +43,21 @@ def test_pose_traj_goal_is_the_reference_window_from_the_step_counter():
     speed = goal / (base.ramp_steps * base.sim.dt)
     torque = 0.5 * speed + 0.5 * torch.tanh(speed / 0.05)
     torch.testing.assert_close(got[..., 1], torque.expand(N, H))
+    # the goal-relative input: reference angles minus the knob's angle after the step
+    torch.testing.assert_close(nxt["goal_error"], angles - nxt["object", "q"])
+
+
+def test_free_body_goal_error_is_position_difference_and_relative_rotation():
+    from dexmots_rl.envs.transforms import _coordinate_error
+
+    half = torch.tensor(0.3)
+    goal = torch.tensor([[1.0, 2.0, 3.0, torch.cos(half), 0.0, 0.0, torch.sin(half)]])
+    achieved = torch.tensor([[0.5, 2.0, 2.0, 1.0, 0.0, 0.0, 0.0]])
+    error = _coordinate_error(goal, achieved)
+    torch.testing.assert_close(error[0, :3], torch.tensor([0.5, 0.0, 1.0]))
+    torch.testing.assert_close(error[0, 3:], goal[0, 3:])  # from the identity, the relative rotation is the goal's
+    same = _coordinate_error(goal, goal)
+    torch.testing.assert_close(same[0], torch.tensor([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
 
 
 def test_reward_terms_match_hand_computed_values():

@@ -28,7 +28,7 @@ def make_env(task: str, num_envs: int = 1, device="cpu", differentiable: bool = 
         >>> from dexmots_rl.envs import make_env
         >>> env = make_env("screw_claw", num_envs=4, device="cpu", differentiable=False, seed=0)
         >>> env.reset()["observation"].shape
-        torch.Size([4, 17])
+        torch.Size([4, 18])
     """
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; known tasks: {', '.join(sorted(TASKS))}")

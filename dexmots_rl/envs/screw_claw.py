@@ -74,7 +74,7 @@ class ScrewClawEnv(DexEnv):
         open_angle: float = math.radians(60.0),
         joint_noise: float = 0.05,
         success_threshold: float = 0.1,
-        ramp_steps: int = 60,
+        ramp_steps: int = 25,
         initial: str = "open",
         reward: RewardCoefficients | dict | None = None,
         pose_scale: float = 0.5,

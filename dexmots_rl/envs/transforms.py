@@ -15,6 +15,11 @@ pose_wrench   per step of the next H: coordinates, then wrench            ``H·(
 Object coordinates (``D``) are the articulation angles for an articulated object and pos + wxyz quat
 (7) for a free body; the wrench (``W``) is the generalised force on the articulation (K) or the
 force + torque (6) on a free body. ``"achieved_goal"`` (the env's) stays the current coordinates.
+
+It also writes ``"goal_error"``: the goal's object coordinates (every step of the window) minus the
+current ones (angles for an articulation; for a free body the position difference and the rotation
+``q_goal * conj(q)`` as a wxyz quaternion): the network could compute it from the two, but a
+goal-relative input spares it learning a subtraction across differently normalised features.
 :func:`observation_transform` then flattens and concatenates the policy input ``"observation"``.
 
 Example:
@@ -43,6 +48,7 @@ POLICY_KEYS = [
     ("object", "qd"),
     ("fingertips", "pos"),
     "desired_goal",
+    "goal_error",
 ]
 
 
@@ -65,42 +71,62 @@ class GoalConditioning(StateTransform):
             raise ValueError(f"goal mode {mode!r} is unknown; known: {', '.join(GOAL_MODES)}")
         if not isinstance(horizon, int) or horizon < 1:
             raise ValueError(f"goal_horizon must be a positive integer, got {horizon!r}")
-        super().__init__(in_keys=[("task", "step"), ("task", "goal")], out_keys=["desired_goal"])
+        super().__init__(in_keys=[("task", "step"), ("task", "goal")], out_keys=["desired_goal", "goal_error"])
         self.mode, self.horizon = mode, horizon
 
     def _task(self):
         return self.parent.base_env
 
-    def _width(self) -> int:
+    def _widths(self) -> tuple[int, int]:
+        """Widths of ``"desired_goal"`` and ``"goal_error"``."""
         env = self._task()
         if self.mode == "pose":
-            return env.goal_dim
+            return env.goal_dim, env.goal_dim
         articulated = env.sim.scene.object_kind == 0
         coords = env.sim.scene.object_nq if articulated else 7
         wrench = env.sim.scene.object_nv if articulated else 6
-        return self.horizon * (coords + (wrench if self.mode == "pose_wrench" else 0))
+        return self.horizon * (coords + (wrench if self.mode == "pose_wrench" else 0)), self.horizon * coords
 
-    def _goal(self, td: TensorDictBase) -> torch.Tensor:
+    def _goal(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(desired_goal, goal_error)`` of a TensorDict holding the env's outputs."""
+        achieved = td.get("achieved_goal")
         if self.mode == "pose":
-            return td.get(("task", "goal"))
+            goal = td.get(("task", "goal"))
+            return goal, _coordinate_error(goal, achieved)
         env = self._task()
         steps = td.get(("task", "step")) + torch.arange(1, self.horizon + 1, device=td.device)
         ref = env.reference(td, steps)
         articulated = env.sim.scene.object_kind == 0
-        parts = [ref["joint_q"] if articulated else ref["pose"]]
+        coords = (ref["joint_q"] if articulated else ref["pose"]).to(achieved.dtype)
+        parts = [coords]
         if self.mode == "pose_wrench":
             parts.append(ref["joint_torque"] if articulated else ref["wrench"])
-        return torch.cat(parts, -1).flatten(-2).to(td.get(("task", "goal")).dtype)
+        error = _coordinate_error(coords, achieved.unsqueeze(-2))
+        return torch.cat(parts, -1).flatten(-2).to(achieved.dtype), error.flatten(-2)
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:
-        td.set("desired_goal", self._goal(td))
+        goal, error = self._goal(td)
+        td.set("desired_goal", goal)
+        td.set("goal_error", error)
         return td
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         old = observation_spec["desired_goal"]
-        observation_spec["desired_goal"] = Unbounded(shape=(*old.shape[:-1], self._width()), dtype=old.dtype,
-                                                     device=old.device)
+        for key, width in zip(("desired_goal", "goal_error"), self._widths()):
+            observation_spec[key] = Unbounded(shape=(*old.shape[:-1], width), dtype=old.dtype, device=old.device)
         return observation_spec
+
+
+def _coordinate_error(goal: torch.Tensor, achieved: torch.Tensor) -> torch.Tensor:
+    """``goal - achieved`` for articulation angles; for free-body poses (pos + wxyz quat, 7 wide) the
+    position difference and the relative rotation ``q_goal * conj(q)``."""
+    if goal.shape[-1] != 7:
+        return goal - achieved
+    achieved = achieved.expand_as(goal)
+    (w1, v1), (w2, v2) = (goal[..., 3:4], goal[..., 4:]), (achieved[..., 3:4], -achieved[..., 4:])
+    w = w1 * w2 - (v1 * v2).sum(-1, keepdim=True)
+    v = w1 * v2 + w2 * v1 + torch.linalg.cross(v1, v2, dim=-1)
+    return torch.cat([goal[..., :3] - achieved[..., :3], w, v], -1)
 
 
 def observation_transform(goal: str = "pose", goal_horizon: int = 8) -> Compose:

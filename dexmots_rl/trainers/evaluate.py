@@ -16,7 +16,7 @@ Example:
     >>> from dexmots_rl.trainers.networks import make_networks
     >>> task = OmegaConf.create({"name": "screw_claw", "goal": "pose", "goal_horizon": 8, "action": "position",
     ...                          "max_episode_steps": 5})
-    >>> actor, _, _ = make_networks(17, 4, (16,))
+    >>> actor, _, _ = make_networks(18, 4, (16,))
     >>> sorted(evaluate_policy(actor, task, episodes=2, seed=0))[:3]
     ['episodes', 'mean_final_error', 'mean_time_to_success_s']
 """
@@ -115,7 +115,8 @@ def policy_from_checkpoint(path, device="cpu"):
     cfg = data["config"]
     env = make_task_env(cfg["task"], 1, differentiable=False, seed=0, device=device)
     actor, critic, norm = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
-                                        tuple(cfg["algo"]["hidden"]), cfg["algo"]["init_log_std"])
+                                        tuple(cfg["algo"]["hidden"]), cfg["algo"]["init_log_std"],
+                                        layer_norm=cfg["algo"].get("layer_norm", False))
     actor.load_state_dict(data["modules"]["actor"])
     norm.load_state_dict(data["modules"]["norm"])
     return actor, data
