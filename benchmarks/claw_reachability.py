@@ -38,7 +38,7 @@ def reach(goal: float, friction: float, damping: float, samples: int, horizon: i
     params = torch.tensor([[damping, friction]]).expand(samples, 2).contiguous()
     plan = torch.zeros(horizon, actions.action_dim)
     if action != "torque":  # start from targets that hold the grasp
-        plan[:, : sim.nu] = 2 * (q[0, : sim.nu] - actions.lower) / (actions.upper - actions.lower) - 1
+        plan[:, : sim.nu] = actions.actions_for_targets(q[0, : sim.nu])
     angles, start = [], time.perf_counter()
     for _ in range(steps):
         candidates = (plan + noise * torch.randn(samples, horizon, actions.action_dim)).clamp(-1, 1)

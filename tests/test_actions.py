@@ -133,3 +133,9 @@ def test_vi_control_drives_the_simulator(make_claw_sim):
     assert torch.isfinite(q).all()
     err = (q[:, : sim.nu] - target).abs().sum(-1)
     assert err[1] < err[0]
+
+
+def test_actions_for_targets_inverts_targets(fake_sim):
+    vi = ActionMap(fake_sim, "vi")
+    a = torch.tensor([[-1.0, -0.3, 0.4, 1.0]], dtype=vi.lower.dtype)
+    torch.testing.assert_close(vi.actions_for_targets(vi.targets(a)), a)

@@ -89,6 +89,10 @@ class ActionMap:
         """Joint targets spanning the joint range for actions ``a`` in [-1, 1] (-1: lower, +1: upper)."""
         return self.lower + 0.5 * (a + 1.0) * (self.upper - self.lower)
 
+    def actions_for_targets(self, q: torch.Tensor) -> torch.Tensor:
+        """The inverse of :meth:`targets`: the actions in [-1, 1] whose joint targets are ``q``."""
+        return 2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0
+
     def stiffness(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(kp, kd)`` for stiffness actions ``s`` in [-1, 1]: log-linear kp, critically damped kd."""
         u = 0.5 * (s + 1.0)
