@@ -228,3 +228,38 @@ def test_taped_and_untaped_steps_agree(make_claw_sim):
     assert float(plain.contact_force[1:].min()) > 0.0
     for name, a, b in zip(plain.names, plain, taped):
         assert torch.equal(a, b.detach()), name
+
+
+def test_adjoint_clip_caps_only_the_outlier_world(make_claw_sim):
+    """With ``adjoint_clip`` a world whose gradient is far above the median world's is scaled down to
+    ``adjoint_clip`` x the median (all of its input gradients by one factor); the others are exact."""
+    exact_sim, clipped_sim = make_claw_sim(5), make_claw_sim(5, adjoint_clip=10.0)
+    q, qd = batch_state(exact_sim, CLAW_CONTACT_Q)
+    tau = torch.tensor([[10.0, -5.0, 3.0, 2.0]] * 5, dtype=torch.float64)
+    weight = torch.tensor([1.0, 2.0, 1.5, 1e6, 0.5], dtype=torch.float64)  # world 3's loss dwarfs the others
+
+    def grads(sim):
+        q_in, qd_in, t = (x.clone().requires_grad_(True) for x in (q, qd, tau))
+        out = sim.step(q_in, qd_in, torque(t), sim.default_params())
+        ((out.joint_q.sum(-1) + out.joint_qd.sum(-1)) * weight).sum().backward()
+        return q_in.grad, qd_in.grad, t.grad
+
+    before = clipped_sim.clipped_adjoints
+    (gq, gqd, gt), (cq, cqd, ct) = grads(exact_sim), grads(clipped_sim)
+    assert clipped_sim.clipped_adjoints - before == 1
+    others = [0, 1, 2, 4]
+    for exact, clipped in ((gq, cq), (gqd, cqd), (gt, ct)):
+        torch.testing.assert_close(clipped[others], exact[others], rtol=0, atol=0)
+    norms = torch.cat([gq, gqd], -1).norm(dim=-1)
+    factor = 10.0 * norms.median() / norms[3]
+    assert float(factor) < 1e-3  # the clip really acted
+    for exact, clipped in ((gq, cq), (gqd, cqd), (gt, ct)):
+        torch.testing.assert_close(clipped[3], exact[3] * factor)
+    torch.testing.assert_close(torch.cat([cq, cqd], -1)[3].norm(), 10.0 * norms.median())
+
+
+def test_adjoint_clip_must_be_at_least_one(claw_scene):
+    from dexmots_rl.sim import Simulator
+
+    with pytest.raises(ValueError, match="adjoint_clip"):
+        Simulator(claw_scene, num_worlds=2, adjoint_clip=0.5)

@@ -49,6 +49,7 @@ class DexEnv(EnvBase):
         damping_range: tuple[float, float] | None = None,
         friction_range: tuple[float, float] | None = None,
         references=None,
+        adjoint_clip: float | None = None,
     ):
         if not isinstance(num_envs, int) or num_envs <= 0:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -59,7 +60,8 @@ class DexEnv(EnvBase):
                 raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {rng!r}")
         device = torch.device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
-        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=substeps, contact=contact)
+        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=substeps, contact=contact,
+                             adjoint_clip=adjoint_clip)
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, max_episode_steps
         self.dtype = dtype
         self.damping_range = damping_range or (scene.object_damping,) * 2

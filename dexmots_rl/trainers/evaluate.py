@@ -43,8 +43,10 @@ TASK_ENV_KEYS = ("goal", "goal_horizon", "action", "max_episode_steps", "damping
                  "references", "reward", "initial", "ramp_steps", "pose_scale", "torque_scale")
 
 
-def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, device="cpu"):
-    """``make_env`` from a task config (hydra ``task`` group); unknown names fail with the field named."""
+def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, device="cpu",
+                  adjoint_clip: float | None = None):
+    """``make_env`` from a task config (hydra ``task`` group); unknown names fail with the field named.
+    ``adjoint_clip``: the simulator's outlier-world gradient clip (a training option, :class:`~dexmots_rl.sim.Simulator`)."""
     from omegaconf import OmegaConf
 
     cfg = OmegaConf.to_container(task_cfg, resolve=True) if not isinstance(task_cfg, dict) else dict(task_cfg)
@@ -52,6 +54,8 @@ def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, devi
     for key in ("damping_range", "friction_range"):
         if key in kwargs:
             kwargs[key] = tuple(kwargs[key])
+    if adjoint_clip is not None:
+        kwargs["adjoint_clip"] = adjoint_clip
     return make_env(cfg["name"], num_envs=num_envs, device=device, differentiable=differentiable, seed=seed,
                     **kwargs)
 

@@ -7,7 +7,8 @@
 
 One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
 policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
-huge) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
+huge; worlds whose gradient through the simulator dwarfs the median world's are capped first,
+``algo.adjoint_clip``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
 on the detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the
 episodes continue from the rollout's last state (graph cut). The run directory gets the resolved
 config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at the end,
@@ -46,7 +47,7 @@ def build(cfg: DictConfig, rank: int = 0):
     """Env, networks, loss, optimisers and the target updater of a run."""
     torch.manual_seed(cfg.seed + rank)
     env = make_task_env(cfg.task, cfg.task.num_envs, differentiable=True, seed=cfg.seed + 1000 * rank,
-                        device=cfg.device)
+                        device=cfg.device, adjoint_clip=cfg.algo.get("adjoint_clip"))
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     torch.manual_seed(cfg.seed)  # identical initial networks on every rank
@@ -83,7 +84,8 @@ def train(cfg: DictConfig) -> dict:
     if ahac is not None:
         modules["ahac"] = ahac
     optimizers = {"actor": actor_opt, "critic": critic_opt}
-    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "wall_clock_s": 0.0}
+    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0}
+    sim = env.base_env.sim
     td = env.reset()
     if start is not None:
         for name, module in modules.items():
@@ -122,7 +124,9 @@ def train(cfg: DictConfig) -> dict:
         # 2. actor: backpropagate the short-horizon return through the simulator
         actor_opt.zero_grad()
         loss_actor = loss.actor_loss(rollout)
+        clipped_before = sim.clipped_adjoints
         loss_actor.backward()
+        counters["clipped_adjoints"] += sim.clipped_adjoints - clipped_before
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
         if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
@@ -197,6 +201,7 @@ def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, 
         "grad_norm": grad_norm,
         "horizon": horizon,
         "skipped_updates": counters["skipped_updates"],
+        "clipped_adjoints": counters["clipped_adjoints"],
         "sim_failures": int(nxt.get(("info", "sim_failures")).sum()),
     }
     if "reward_terms" in nxt.keys():
