@@ -1,7 +1,7 @@
 """``dexmots-bench``: simulator throughput against MuJoCo, and gradient quality against finite differences.
 
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
-    dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6]
+    dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw --algo shac --json [hydra overrides ...]
 
@@ -56,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--floor-rel", type=float, default=1e-3,
                    help="rel_err denominator floor, relative to max |dL/da| of the row")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--draws", type=int, default=8, help="random action sequences per row (medians reported)")
 
     p = sub.add_parser("plan", help="wrench planning through the simulator: tracking-error reduction")
     common(p)
@@ -75,10 +76,11 @@ def _grad_goals(result: dict) -> dict:
     longest = max(r["horizon"] for r in rows)
     met = {"median_rel_err_with_contact": all(r["median_rel_err"] <= GOALS["median_rel_err_with_contact"]
                                               for r in rows if r["contact"])}
-    for kind in dict.fromkeys(r.get("loss_kind", "pose") for r in rows):  # one verdict per loss
-        met[f"grad_growth_at_longest_horizon[{kind}]"] = all(
-            r["grad_growth"] <= GOALS["grad_growth_at_longest_horizon"]
-            for r in rows if r["horizon"] == longest and r.get("loss_kind", "pose") == kind)
+    # judged on the velocity loss: a position loss grows ~H^2 backward without any contact (the lever arm of
+    # early actions, see bench_grad), so its ratio is reported but says nothing about amplification
+    met["grad_growth_at_longest_horizon"] = all(
+        r["grad_growth"] <= GOALS["grad_growth_at_longest_horizon"]
+        for r in rows if r["horizon"] == longest and r.get("loss_kind") == "velocity" and r["contact"])
     return met
 
 
@@ -123,7 +125,7 @@ def _execute(args: argparse.Namespace) -> dict:
         from .bench_grad import run_grad
 
         result = run_grad(args.task, args.horizons, args.eps, args.num_entries, args.floor_rel, args.seed,
-                          args.device)
+                          args.device, args.draws)
         result["goals"], result["goals_met"] = dict(GOALS), _grad_goals(result)
         return result
 
