@@ -59,8 +59,13 @@ def test_checkpoint_round_trip_and_eval(tmp_path):
     saved = data["modules"]["actor"]
     for key, value in actor.state_dict().items():
         torch.testing.assert_close(value, saved[key])
-    ev = evaluate_policy(actor, data["config"]["task"], episodes=2, seed=0)
-    assert ev["episodes"] == 2 and 0.0 <= ev["success_rate"] <= 1.0
+    ev = evaluate_policy(actor, data["config"]["task"], episodes=8, seed=0)
+    assert ev["episodes"] == 8 and 0.0 <= ev["success_rate"] <= 1.0
+    groups = ev["success_by_friction"]  # quartiles of the episodes' drawn knob friction
+    assert [g["episodes"] for g in groups] == [2, 2, 2, 2]
+    assert all(0.2 <= g["low"] <= g["high"] <= 1.0 for g in groups)
+    assert all(a["high"] <= b["low"] for a, b in zip(groups, groups[1:]))
+    assert sum(g["success_rate"] for g in groups) / 4 == pytest.approx(ev["success_rate"])
     eval_main([str(tmp_path / "run"), "--episodes", "2"])
     assert json.loads((tmp_path / "run" / "eval.json").read_text())["episodes"] == 2
 

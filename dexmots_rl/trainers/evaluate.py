@@ -88,7 +88,16 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         "mean_final_error": float(final_error.mean()),
         "mean_time_to_success_s": float(tts.mean()) if won.any() else float("nan"),
         "sim_failures": int(nxt.get(("info", "sim_failures"))[:, -1].sum()),
+        # where the misses are: the object's joint friction is the parameter that decides most of them
+        "success_by_friction": _success_by(rollout.get(("sim", "params"))[:, 0, 1], won),
     }
+
+
+def _success_by(values: torch.Tensor, won: torch.Tensor, groups: int = 4) -> list[dict]:
+    """Success rate in ``groups`` equal-count groups of episodes sorted by ``values`` (quartiles by default)."""
+    order = values.argsort()
+    return [{"low": float(values[idx].min()), "high": float(values[idx].max()), "episodes": len(idx),
+             "success_rate": float(won[idx].float().mean())} for idx in order.chunk(groups)]
 
 
 _LIVE_RECORDERS: dict = {}
