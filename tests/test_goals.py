@@ -47,6 +47,19 @@ def test_pose_traj_goal_is_the_reference_window_from_the_step_counter():
     torch.testing.assert_close(nxt["goal_error"], angles - nxt["object", "q"])
 
 
+def test_episode_reference_torque_uses_each_worlds_drawn_knob():
+    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=1, reference_torque="episode")
+    base = env.base_env
+    nxt = env.rollout(2)["next"][:, -1]
+    damping, friction = nxt["sim", "params"].unbind(-1)
+    assert damping.unique().numel() == N and friction.unique().numel() == N  # drawn per world
+    speed = nxt["task", "goal"] / (base.ramp_steps * base.sim.dt)
+    torque = damping[:, None] * speed + friction[:, None] * torch.tanh(speed / 0.05)
+    torch.testing.assert_close(nxt["desired_goal"].view(N, H, 2)[..., 1], torque.expand(N, H))
+    with pytest.raises(ValueError, match="reference_torque"):
+        make_env("screw_claw", num_envs=1, reference_torque="measured")
+
+
 def test_free_body_goal_error_is_position_difference_and_relative_rotation():
     from dexmots_rl.envs.transforms import _coordinate_error
 

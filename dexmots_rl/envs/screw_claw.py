@@ -10,7 +10,10 @@ spread by ``open_angle``) with a little joint noise, or with ``initial="grasp"``
 Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
 to the goal over ``ramp_steps`` env steps and then holds; the reference torque about the hinge is the
 one the *nominal* knob (the MJCF's damping and friction, not the episode's randomised ones: the plan
-does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after. With
+does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after;
+``reference_torque="episode"`` computes it with the episode's drawn damping and friction instead (the
+paper's premise: the wrench requirement of *this* object is part of the goal, so the policy is told how
+hard the knob is to turn, while its pose-only goal modes still are not). With
 ``references=`` (plans from ``dexmots-plan``) each world follows one planned trajectory instead and its
 goal is that plan's final angle.
 
@@ -49,6 +52,7 @@ from .rewards import (
 
 __all__ = ["ScrewClawEnv"]
 
+REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is computed for
 KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
 # hand joints (right prox, right distal, left prox, left distal); "open" uses open_angle
 INITIAL_POSES = {"open": None, "grasp": (0.5, -0.6, -0.5, 0.6)}
@@ -79,6 +83,7 @@ class ScrewClawEnv(DexEnv):
         reward: RewardCoefficients | dict | None = None,
         pose_scale: float = 0.5,
         torque_scale: float = 1.0,
+        reference_torque: str = "nominal",
         **kwargs,
     ):
         if not (len(goal_range) == 2 and 0 <= goal_range[0] <= goal_range[1]):
@@ -87,12 +92,15 @@ class ScrewClawEnv(DexEnv):
             raise ValueError(f"initial must be one of {', '.join(INITIAL_POSES)}, got {initial!r}")
         if ramp_steps < 1:
             raise ValueError(f"ramp_steps must be >= 1, got {ramp_steps}")
+        if reference_torque not in REFERENCE_TORQUES:
+            raise ValueError(f"reference_torque must be one of {', '.join(REFERENCE_TORQUES)}, got {reference_torque!r}")
         if not (pose_scale > 0 and torque_scale > 0):
             raise ValueError(f"pose_scale and torque_scale must be > 0, got {pose_scale}, {torque_scale}")
         self.goal_range, self.open_angle, self.joint_noise = goal_range, open_angle, joint_noise
         self.success_threshold, self.ramp_steps = success_threshold, ramp_steps
         self.coeffs = reward if isinstance(reward, RewardCoefficients) else RewardCoefficients(**(reward or {}))
         self.pose_scale, self.torque_scale = pose_scale, torque_scale
+        self.reference_torque = reference_torque
         super().__init__(load_scene(asset_path(self.asset)), num_envs, device=device, differentiable=differentiable,
                          action=action, max_episode_steps=max_episode_steps, seed=seed, damping_range=damping_range,
                          friction_range=friction_range, **kwargs)
@@ -138,6 +146,9 @@ class ScrewClawEnv(DexEnv):
         speed = goal.unsqueeze(1) / (self.ramp_steps * self.sim.dt)
         moving = ((steps >= 1) & (steps <= self.ramp_steps)).unsqueeze(-1)
         damping, friction = self._nominal
+        if self.reference_torque == "episode":
+            params = td[("sim", "params")].to(self.dtype)  # [N, 2]: the episode's damping, friction
+            damping, friction = params[:, None, 0:1], params[:, None, 1:2]
         torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
         half = 0.5 * angle
         quat = torch.cat([torch.cos(half), torch.sin(half) * self._axis], -1)

@@ -40,7 +40,8 @@ log = logging.getLogger(__name__)
 
 # task config fields that are env keyword arguments (the rest, e.g. num_envs, are the trainer's)
 TASK_ENV_KEYS = ("goal", "goal_horizon", "action", "max_episode_steps", "damping_range", "friction_range",
-                 "references", "reward", "initial", "ramp_steps", "pose_scale", "torque_scale")
+                 "references", "reward", "initial", "ramp_steps", "pose_scale", "torque_scale",
+                 "reference_torque")
 
 
 def make_task_env(task_cfg, num_envs: int, differentiable: bool, seed: int, device="cpu",
