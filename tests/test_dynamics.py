@@ -143,6 +143,29 @@ def test_claw_torque_accelerates_its_joint(make_claw_sim):
     assert float(out.contact_force.abs().max()) == 0.0
 
 
+def test_claw_pd_drive_saturates_at_the_motor_effort(make_claw_sim, claw_scene):
+    """A stiff target far away pushes no harder than the motor can (|gear| * ctrlrange = 150 N m),
+    while a mild one stays (almost) linear."""
+    from dexmots_rl.sim import Control
+
+    effort = torch.as_tensor(claw_scene.actuator_effort)
+    torch.testing.assert_close(effort, torch.full((4,), 150.0, dtype=torch.float64))
+    sim = make_claw_sim(3)
+    q, qd = batch_state(sim, CLAW_OPEN_Q)
+    z = torch.zeros(3, 4, dtype=torch.float64)
+    far = q[:, :4] + torch.tensor([[5.0, 0, 0, 0], [0.01, 0, 0, 0], [0, 0, 0, 0]], dtype=torch.float64)
+    kp = torch.zeros(3, 4, dtype=torch.float64)
+    kp[:2, 0] = 1e5  # only joint 0 is driven; world 2 uses torque control
+    tau = torch.zeros(3, 4, dtype=torch.float64)
+    tau[2, 0] = 150.0  # the motor at full effort, torque control
+    out = sim.step(q, qd, Control(tau, far, kp.clone(), z.clone()), sim.default_params())
+    saturated, mild, full = out.joint_qd[:, 0]
+    # 5 rad at kp 1e5 would be 5e5 N m unsaturated: it moves the joint like the motor's full torque
+    torch.testing.assert_close(saturated, full, rtol=0.02, atol=0.0)
+    # 0.01 rad at kp 1e5 asks 1e3 N m at first but the joint closes the gap within the step: slower
+    assert 0.0 < mild < full
+
+
 def test_claw_kinetic_energy_decays_without_torque(make_claw_sim, claw_mj):
     """Planar claw, gravity along the joint axes, no contact: joint damping only removes energy."""
     sim = make_claw_sim(1)

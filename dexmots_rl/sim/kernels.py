@@ -63,6 +63,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         lower: wp.array(dtype=dtype)
         upper: wp.array(dtype=dtype)
         limit_ke: wp.array(dtype=dtype)
+        effort: wp.array(dtype=dtype)  # PD drive saturation per dof (0: none)
         point_pos: wp.array(dtype=vec3)
         point_radius: wp.array(dtype=dtype)
         tip_pos: wp.array(dtype=vec3)
@@ -341,15 +342,22 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             i = f * J + k
             qk = q[r, i]
             qdk = qd[r, i]
-            damp = m.damping[i] + kd[w, i]
-            diag[k, k] = m.armature[i] + dt * damp + dt * dt * kp[w, i]
+            # implicit PD drive, saturated smoothly at the motor's effort e: e tanh(drive / e), and its
+            # implicit gain scaled by the saturation's slope (a stiff target far inside the object
+            # otherwise asks for kp * error, ~10x what the motor can give)
+            drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
+            gain = dt * kd[w, i] + dt * dt * kp[w, i]
+            effort = m.effort[i]
+            if effort > dtype(0.0):
+                sat = wp.tanh(drive / effort)
+                drive = effort * sat
+                gain = gain * (dtype(1.0) - sat * sat)
+            diag[k, k] = m.armature[i] + dt * m.damping[i] + gain
             lim = m.limit_ke[i] * (
                 limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
             )
             fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
-            rhs[k] = (
-                tau[w, i] + kp[w, i] * (q_target[w, i] - qk - dt * qdk) - damp * qdk - fric + lim + gen[k] - bias[k]
-            )
+            rhs[k] = tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[k] - bias[k]
         if wp.static(J == 1):
             qdd = vecJ(rhs[0] / (M[0, 0] + diag[0, 0]))
         else:

@@ -82,6 +82,7 @@ class SceneModel:
     dof_limited: np.ndarray  # [F*J] bool
     dof_inertia0: np.ndarray  # [F*J] diagonal of the mass matrix at q = 0 (for stiffness scaling)
     actuator_gear: np.ndarray  # [F*J] motor gear per hand dof (0 when unactuated)
+    actuator_effort: np.ndarray  # [F*J] largest joint torque the motor gives (0: unlimited)
     # contact sample points on finger links, indexed [(finger * J + link) * P + point]
     point_pos: np.ndarray  # [F*J*P, 3] in the link frame
     point_radius: np.ndarray  # [F*J*P] 0 = padding
@@ -288,10 +289,18 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         tips.append(m.site_pos[sites[0]].copy() if sites else np.zeros(3))
 
     inertias = [_body_inertia(m, b) for b in hand_bodies]
-    gear = np.zeros(num_f * num_j)
+    gear, effort = np.zeros(num_f * num_j), np.zeros(num_f * num_j)
     for a in range(m.nu):
         if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] in jids:
-            gear[jids.index(m.actuator_trnid[a, 0])] = m.actuator_gear[a, 0]
+            dof = jids.index(m.actuator_trnid[a, 0])
+            gear[dof] = m.actuator_gear[a, 0]
+            # the drive saturates where the motor does: |gear| * ctrl range, or the force range if tighter
+            limits = []
+            if m.actuator_ctrllimited[a]:
+                limits.append(abs(gear[dof]) * np.abs(m.actuator_ctrlrange[a]).max())
+            if m.actuator_forcelimited[a]:
+                limits.append(np.abs(m.actuator_forcerange[a]).max())
+            effort[dof] = min(limits) if limits else 0.0
     dofs = np.arange(num_f * num_j)
     limited = m.jnt_limited[jids].astype(bool)
 
@@ -336,6 +345,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         dof_limited=limited,
         dof_inertia0=m.dof_M0[dofs].copy(),
         actuator_gear=gear,
+        actuator_effort=effort,
         point_pos=point_pos,
         point_radius=point_radius,
         tip_pos=np.stack(tips),

@@ -29,7 +29,8 @@ class Control:
     """Joint-space drive for the hand, one row per world: ``tau + kp (q_target - q) - kd qd``.
 
     Torque control sets ``tau`` only; position control sets ``q_target``/``kp``/``kd``; variable
-    impedance also varies ``kp`` per step. The PD terms are integrated implicitly (stable at any gain).
+    impedance also varies ``kp`` per step. The PD terms are integrated implicitly (stable at any gain) and
+    saturate smoothly at the motor's effort (``|gear| * ctrlrange`` of the MJCF motor): ``e tanh(drive / e)``.
     ``object_wrench`` [N, 6] (optional) is an external force + torque on the object in the world frame,
     torque about the object origin (a hinge feels its axis component): the wrench planner drives the
     object alone with it.
@@ -144,6 +145,7 @@ class Simulator:
         m.mass, m.com, m.inertia = arr(s.link_mass, wdt), arr(s.link_com, k.vec3), arr(s.link_inertia, k.mat33)
         m.armature, m.damping, m.friction = arr(s.dof_armature, wdt), arr(s.dof_damping, wdt), arr(s.dof_friction, wdt)
         m.lower, m.upper, m.limit_ke = arr(s.dof_lower, wdt), arr(s.dof_upper, wdt), arr(limit_ke, wdt)
+        m.effort = arr(s.actuator_effort, wdt)
         m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
         m.tip_pos = arr(s.tip_pos, k.vec3)
         m.obj_base_pos, m.obj_base_rot = k.vec3(*s.object_base_pos), k.mat33(*s.object_base_rot.ravel())
