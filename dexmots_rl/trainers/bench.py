@@ -3,7 +3,7 @@
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
     dexmots-bench plan --task screw_claw --json [--iterations 200]
-    dexmots-bench train --task screw_claw --algo shac --json [hydra overrides ...]
+    dexmots-bench train --task screw_claw [--algo ahac|shac] --json [hydra overrides ...]
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train from scratch with dexmots-train's defaults, evaluate, time it")
     common(p)
-    p.add_argument("--algo", default="shac", choices=["shac", "ahac"])
+    p.add_argument("--algo", default="ahac", choices=["shac", "ahac"], help="default: dexmots-train's")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--run-dir", default=None, help="default: runs/bench_<task>_<algo>_seed<seed>")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides, e.g. algo.iterations=300")

@@ -1,8 +1,8 @@
 """``dexmots-eval``: run N episodes of a trained policy deterministically and report success.
 
-    dexmots-eval runs/screw_claw_shac_seed0                       # its checkpoints/last.pt, 100 episodes
-    dexmots-eval runs/screw_claw_shac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
-    dexmots-eval runs/screw_claw_shac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
+    dexmots-eval runs/screw_claw_ahac_seed0                       # its checkpoints/last.pt, 100 episodes
+    dexmots-eval runs/screw_claw_ahac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
+    dexmots-eval runs/screw_claw_ahac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
 
 Every episode is one world of a non-differentiable env built from the checkpoint's task config, run for
 ``max_episode_steps`` steps with the deterministic policy (the tanh of the Gaussian's mean). Success is

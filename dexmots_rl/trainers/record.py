@@ -2,7 +2,7 @@
 
     dexmots-record task=screw_claw episodes=2 out=run.mcap                 # scripted policy, 4 worlds
     dexmots-record task=screw_claw policy=random num_envs=8 steps=50 out=random.mcap
-    dexmots-record checkpoint=runs/screw_claw_shac_seed0 episodes=3 out=trained.mcap
+    dexmots-record checkpoint=runs/screw_claw_ahac_seed0 episodes=3 out=trained.mcap
     dexmots-record task=screw_claw episodes=20 live=true out=live.mcap     # + dexmots-view live.mcap --live
 
 Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),

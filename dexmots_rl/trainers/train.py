@@ -2,7 +2,7 @@
 
     dexmots-train                                   # screw_claw, SHAC, configs/ defaults
     dexmots-train task=screw_claw algo=ahac seed=1 algo.iterations=100
-    dexmots-train resume=runs/screw_claw_shac_seed0 # continue from the last checkpoint
+    dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
     torchrun --nproc_per_node 2 -m dexmots_rl.trainers.train task.num_envs=32   # data parallel
 
 One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
