@@ -1,8 +1,10 @@
-"""dexmots-bench grad: AD vs finite differences and the growth statistics, on a tiny configuration."""
+"""dexmots-bench grad (AD vs finite differences, growth statistics) and train over seeds, on tiny configurations."""
 
 from __future__ import annotations
 
 import math
+
+import pytest
 
 from dexmots_rl.trainers.bench import format_table, run
 
@@ -24,3 +26,19 @@ def test_grad_bench_rows_agree_with_finite_differences():
     assert result["goals_met"]["median_rel_err_with_contact"]
     assert "grad_growth_at_longest_horizon" in result["goals_met"]
     assert "goal grad_growth_at_longest_horizon" in format_table(result)
+
+
+def test_train_bench_over_seeds_reports_each_run_and_the_spread(tmp_path):
+    tiny = ["task.num_envs=4", "algo.horizon=4", "algo.critic_iterations=2", "algo.critic_minibatches=2",
+            "algo.hidden=[16]", "eval.episodes=4", "task.max_episode_steps=6", "algo.iterations=1"]
+    result = run(["train", "--task", "screw_claw", "--algo", "shac", "--seeds", "0", "1", "--run-dir",
+                  str(tmp_path), "--quiet", *tiny])
+    runs = result["runs"]
+    assert [r["seed"] for r in runs] == [0, 1] and result["seeds"] == [0, 1]
+    for r in runs:
+        assert (tmp_path / f"seed{r['seed']}" / "metrics.jsonl").exists()
+        assert r["env_steps"] == 4 * 4
+    rates = [r["success_rate"] for r in runs]
+    assert result["success_rate"] == pytest.approx(sum(rates) / 2)
+    assert result["success_rate_std"] == pytest.approx(abs(rates[0] - rates[1]) / math.sqrt(2))
+    assert {"task", "algo", "success_rate", "wall_clock_s", "env_steps"} <= set(result)

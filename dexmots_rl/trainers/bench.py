@@ -3,7 +3,7 @@
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
     dexmots-bench plan --task screw_claw --json [--iterations 200]
-    dexmots-bench train --task screw_claw [--algo ahac|shac] --json [hydra overrides ...]
+    dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import json
 import logging
+import statistics
 import sys
 
 from .bench_setup import BENCH_TASKS
@@ -66,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--algo", default="ahac", choices=["shac", "ahac"], help="default: dexmots-train's")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", type=int, nargs="+", default=None,
+                   help="train once per seed and report the mean and sample s.d. of the success rate")
     p.add_argument("--run-dir", default=None, help="default: runs/bench_<task>_<algo>_seed<seed>")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides, e.g. algo.iterations=300")
     return parser
@@ -131,17 +134,32 @@ def _execute(args: argparse.Namespace) -> dict:
 
 
 def _train_bench(args: argparse.Namespace) -> dict:
+    if not args.seeds:
+        return _train_one(args, args.seed, args.run_dir)
+    # several seeds: one run each (run_dir/seed<N> when --run-dir is given), then mean and sample s.d.
+    runs = [_train_one(args, seed, f"{args.run_dir}/seed{seed}" if args.run_dir else None) for seed in args.seeds]
+    def mean(key: str) -> float:
+        return statistics.fmean(r[key] for r in runs)
+
+    rates = [r["success_rate"] for r in runs]
+    return {"task": args.task, "algo": args.algo, "seeds": list(args.seeds), "success_rate": mean("success_rate"),
+            "success_rate_std": statistics.stdev(rates) if len(rates) > 1 else 0.0,
+            "wall_clock_s": mean("wall_clock_s"), "env_steps": mean("env_steps"),
+            "mean_final_error": mean("mean_final_error"), "goal_success_rate": 0.9, "runs": runs}
+
+
+def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict:
     from hydra import compose, initialize_config_dir
 
     from .train import CONFIG_DIR, train
 
-    run_dir = args.run_dir or f"runs/bench_{args.task}_{args.algo}_seed{args.seed}"
+    run_dir = run_dir or f"runs/bench_{args.task}_{args.algo}_seed{seed}"
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={args.seed}",
+        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={seed}",
                                            f"device={args.device}", f"run_dir={run_dir}", "progress=false",
                                            *args.overrides])
     result = train(cfg)
-    return {"task": args.task, "algo": args.algo, "success_rate": result["success_rate"],
+    return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
             "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
             "mean_final_error": result["mean_final_error"], "goal_success_rate": 0.9,
             "learning_curve": f"{run_dir}/metrics.jsonl"}
