@@ -30,6 +30,7 @@ bench: setup
 	$(VENV)/bin/dexmots-bench throughput --task screw_claw --json
 	$(VENV)/bin/dexmots-bench grad --task screw_claw --json
 	$(VENV)/bin/dexmots-bench plan --task screw_claw --json
+	$(VENV)/bin/dexmots-bench train --task screw_claw --algo ahac --json
 	$(VENV)/bin/dexmots-bench train --task screw_claw --algo shac --json
 
 clean:
