@@ -20,10 +20,13 @@ TINY = ["task.num_envs=4", "algo.horizon=4", "algo.critic_iterations=2", "algo.c
         "algo.hidden=[16]", "eval.episodes=3", "task.max_episode_steps=6", "progress=false", "checkpoint_every=1"]
 
 
+TINY_SHAC = ["algo=shac", *TINY]  # TINY's horizon is SHAC's (AHAC, the default, starts above it)
+
+
 def _cfg(run_dir, *overrides):
-    algo = [] if any(o.startswith("algo=") for o in overrides) else ["algo=shac"]  # TINY's horizon is SHAC's
+    base = TINY if any(o.startswith("algo=") for o in overrides) else TINY_SHAC
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose("config", overrides=[*algo, *TINY, f"run_dir={run_dir}", *overrides])
+        return compose("config", overrides=[*base, f"run_dir={run_dir}", *overrides])
 
 
 def _rows(run_dir):
@@ -114,7 +117,7 @@ def test_ahac_runs_and_records_its_horizon(tmp_path):
 @pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"), ("task.action=velocity", "action"),
                                              ("task.reward.lambda_act=-1", "lambda_act")])
 def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
-    proc = subprocess.run([sys.executable, "-m", "dexmots_rl.trainers.train", "algo=shac", *TINY,
+    proc = subprocess.run([sys.executable, "-m", "dexmots_rl.trainers.train", *TINY_SHAC,
                            f"run_dir={tmp_path}/r", "algo.iterations=1", override], capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0
     last = proc.stderr.strip().splitlines()[-1]
@@ -125,7 +128,7 @@ def test_torchrun_two_processes(tmp_path):
     torchrun = Path(sys.executable).parent / "torchrun"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m", "dexmots_rl.trainers.train",
-                           "algo=shac", *TINY, f"run_dir={tmp_path}/r", "algo.iterations=2"], capture_output=True, text=True,
+                           *TINY_SHAC, f"run_dir={tmp_path}/r", "algo.iterations=2"], capture_output=True, text=True,
                           timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((tmp_path / "r" / "metrics.json").read_text())

@@ -102,8 +102,8 @@ def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: 
     growth = norms.amax(1) / norms[:, -1]
     # per-step amplification backward in time: slope of log|dL/da_t| against steps-to-go (1.0: none)
     to_go = torch.arange(horizon - 1, -1, -1, dtype=torch.float64)
-    slope = ((to_go - to_go.mean()) * (norms.log() - norms.log().mean(1, keepdim=True))).sum(1) / (
-        (to_go - to_go.mean()) ** 2).sum().clamp_min(1e-12)
+    x = to_go - to_go.mean()  # centred, so the least-squares slope needs no centring of log|dL/da_t|
+    slope = (norms.log() * x).sum(1) / (x * x).sum().clamp_min(1e-12)
     contact_fraction = (forces.view(horizon, draws, per_draw)[:, :, 0] > 0).double().mean().item()
     if contact != (contact_fraction > 0):
         log.warning("H=%d contact=%s: contact force > 0 on %.0f%% of the steps", horizon, contact,

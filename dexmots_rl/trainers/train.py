@@ -1,7 +1,7 @@
 """``dexmots-train``: DexMOTS policy learning with SHAC / AHAC, readable top to bottom.
 
-    dexmots-train                                   # screw_claw, SHAC, configs/ defaults
-    dexmots-train task=screw_claw algo=ahac seed=1 algo.iterations=100
+    dexmots-train                                   # screw_claw, AHAC, configs/ defaults
+    dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
     torchrun --nproc_per_node 2 -m dexmots_rl.trainers.train task.num_envs=32   # data parallel
 
