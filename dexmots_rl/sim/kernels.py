@@ -45,6 +45,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     matJ = wp.types.matrix((J, J), dtype)
     quat = wp.types.quaternion(dtype)
     matJ3 = wp.types.matrix((J, 3), dtype)
+    vec7 = wp.types.vector(7, dtype)  # a finger's saved result: force, torque on the object, normal force
+    vecC = wp.types.vector(7 + J, dtype)  # a contact's saved result: force, point, normal force, joint forces
 
     @wp.struct
     class Model:
@@ -110,6 +112,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
 
     @wp.func
+    def unit_j(j: int):
+        e = vecJ()
+        e[j] = dtype(1.0)
+        return e
+
+    @wp.func
     def jac_col(jt: wp.int32, a: vec3, o: vec3, p: vec3):
         # linear velocity of point p per unit joint velocity
         if jt == HINGE:
@@ -158,11 +166,13 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
     @wp.func
-    def object_sdf(m: Model, p: vec3):
-        """Signed distance (smoothed at edges) and outward unit normal, object frame."""
+    def object_sdf(m: Model, p: vec3, saved: wp.array2d(dtype=vec4), row: int, slot: int):
+        """Signed distance (smoothed at edges) and outward unit normal (object frame), packed as
+        (d, n). ``saved``/``row``/``slot``: where the caller saves the result for the reverse pass."""
         if wp.static(shape == SHAPE_SPHERE):
             d = wp.length(p)
-            return d - m.shape_size[0], p / wp.max(d, dtype(1e-9))
+            n = p / wp.max(d, dtype(1e-9))
+            return vec4(d - m.shape_size[0], n[0], n[1], n[2])
         if wp.static(shape == SHAPE_CYLINDER):
             rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1e-12))
             s_r = rho - m.shape_size[0]
@@ -170,10 +180,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             hi = wp.max(s_r, s_z)
             w_r = wp.exp((s_r - hi) / m.smooth)
             w_z = wp.exp((s_z - hi) / m.smooth)
-            n = w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
-            return hi + m.smooth * wp.log(w_r + w_z), wp.normalize(n)
+            n = wp.normalize(w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2])))
+            return vec4(hi + m.smooth * wp.log(w_r + w_z), n[0], n[1], n[2])
         if wp.static(shape == SHAPE_SDF):
-            return grid_sdf(m, p)
+            d, n = grid_sdf(m, p)
+            return vec4(d, n[0], n[1], n[2])
         # convex polytope: log-sum-exp smooth max over face planes
         hi = dtype(-1e9)
         for k in range(K):
@@ -188,7 +199,16 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 w = wp.exp(gap / m.smooth)
                 total = total + w
                 n = n + w * vec3(pl[0], pl[1], pl[2])
-        return hi + m.smooth * wp.log(total), wp.normalize(n)
+        n = wp.normalize(n)
+        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+
+    # Replays: warp's adjoint of a function first re-runs the function's forward to get its
+    # intermediates, and the adjoint of a caller re-runs its callees too, so a function nested d deep
+    # ran d + 1 times in the reverse pass. A taped forward saves each call's result; the replays below
+    # load it, so every function body runs once more in reverse (in its own adjoint) and no more.
+    @wp.func_replay(object_sdf)
+    def replay_object_sdf(m: Model, p: vec3, saved: wp.array2d(dtype=vec4), row: int, slot: int):
+        return saved[row, slot]
 
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
@@ -224,20 +244,23 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     @wp.func
     def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                      A: matJ3, O: matJ3, qdf: vecJ):
+                      A: matJ3, O: matJ3, qdf: vecJ, saved: wp.array2d(dtype=vecC),
+                      saved_sdf: wp.array2d(dtype=vec4), row: int, slot: int):
         """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
 
-        Returns the force on the finger, the contact point, the normal force magnitude and the
-        generalized force on the finger's joints.
+        Returns, packed in one vector: the force on the finger, the contact point, the normal force
+        magnitude and the generalized force on the finger's joints.
         """
-        d, n_o = object_sdf(m, wp.transpose(Ro) * (p - xo))
-        phi = rad - d
+        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved_sdf, row, slot)
+        if saved_sdf.shape[0] > 0:
+            saved_sdf[row, slot] = sd
+        phi = rad - sd[0]
         fc = vec3()
         fn = dtype(0.0)
         cp = p
         gen = vecJ()
         if phi > -dtype(CONTACT_CUTOFF) / m.beta:
-            n = Ro * n_o
+            n = Ro * vec3(sd[1], sd[2], sd[3])
             cp = p - n * rad
             Jv = point_jacobian(m.jtype, base, A, O, cp)
             v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, cp - xo)
@@ -247,7 +270,20 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
             fc = fn * n + ft
             gen = Jv * fc
-        return fc, cp, fn, gen
+        res = vecC()
+        for c in range(3):
+            res[c] = fc[c]
+            res[3 + c] = cp[c]
+        res[6] = fn
+        for j in range(J):
+            res[7 + j] = gen[j]
+        return res
+
+    @wp.func_replay(point_contact)
+    def replay_point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                             A: matJ3, O: matJ3, qdf: vecJ, saved: wp.array2d(dtype=vecC),
+                             saved_sdf: wp.array2d(dtype=vec4), row: int, slot: int):
+        return saved[row, slot]
 
     @wp.func
     def finger_step(
@@ -267,10 +303,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo: vec3,
         vo: vec3,
         wo: vec3,
+        saved: wp.array2d(dtype=vec7),
+        saved_contact: wp.array2d(dtype=vecC),
+        saved_sdf: wp.array2d(dtype=vec4),
     ):
-        """Advance finger f of world w (state row r of q/qd, written to row ro) by one substep; returns the contact wrench it puts on the object
-        (force, torque about xo) and its summed normal force. A function rather than inline code keeps
-        each compiled frame small: warp value-initialises every local of a frame on entry."""
+        """Advance finger f of world w (state row r of q/qd, written to row ro) by one substep; returns the
+        contact force and torque (about xo) it puts on the object and its summed normal force, packed.
+        A function rather than inline code keeps each compiled frame small: warp value-initialises every
+        local of a frame on entry. ``saved*`` (rows: ``ro``; empty when untaped): results kept for the
+        reverse pass."""
         f_obj = vec3()
         t_obj = vec3()
         cforce = dtype(0.0)
@@ -330,11 +371,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 rad = m.point_radius[pi]
                 p = x + R * m.point_pos[pi]
                 if rad > dtype(0.0) and wp.length(wp.transpose(Ro) * (p - xo)) < reach + rad:
-                    fc, cp, fn, gen_s = point_contact(m, p, rad, Ro, xo, vo, wo, f * J, A, O, qdf)
-                    cforce = cforce + fn
+                    res = point_contact(m, p, rad, Ro, xo, vo, wo, f * J, A, O, qdf, saved_contact, saved_sdf, ro, pi)
+                    if saved_contact.shape[0] > 0:
+                        saved_contact[ro, pi] = res
+                    fc = vec3(res[0], res[1], res[2])
+                    cforce = cforce + res[6]
                     f_obj = f_obj - fc
-                    t_obj = t_obj - wp.cross(cp - xo, fc)
-                    gen = gen + gen_s
+                    t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, fc)
+                    for j in range(J):
+                        gen = gen + unit_j(j) * res[7 + j]
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
         rhs = vecJ()
         diag = matJ()
@@ -367,7 +412,31 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             v_new = qd[r, i] + dt * qdd[k]
             qd[ro, i] = v_new
             q[ro, i] = q[r, i] + dt * v_new
-        return f_obj, t_obj, cforce
+        return vec7(f_obj[0], f_obj[1], f_obj[2], t_obj[0], t_obj[1], t_obj[2], cforce)
+
+    @wp.func_replay(finger_step)
+    def replay_finger_step(
+        m: Model,
+        f: int,
+        w: int,
+        r: int,
+        ro: int,
+        q: wp.array2d(dtype=dtype),
+        qd: wp.array2d(dtype=dtype),
+        tau: wp.array2d(dtype=dtype),
+        q_target: wp.array2d(dtype=dtype),
+        kp: wp.array2d(dtype=dtype),
+        kd: wp.array2d(dtype=dtype),
+        dt: dtype,
+        Ro: mat33,
+        xo: vec3,
+        vo: vec3,
+        wo: vec3,
+        saved: wp.array2d(dtype=vec7),
+        saved_contact: wp.array2d(dtype=vecC),
+        saved_sdf: wp.array2d(dtype=vec4),
+    ):
+        return saved[ro, f]
 
     @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
     def substep(
@@ -382,6 +451,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         ext: wp.array2d(dtype=dtype),
         wrench: wp.array2d(dtype=dtype),
         cforce: wp.array(dtype=dtype),
+        saved: wp.array2d(dtype=vec7),
+        saved_contact: wp.array2d(dtype=vecC),
+        saved_sdf: wp.array2d(dtype=vec4),
         w0: int,
         in_base: int,
         out_base: int,
@@ -399,10 +471,13 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         t_obj = vec3()  # about the object origin xo
         c_sum = dtype(0.0)
         for f in range(F):
-            ff, ft, fc = finger_step(m, f, w, r, ro, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo)
-            f_obj = f_obj + ff
-            t_obj = t_obj + ft
-            c_sum = c_sum + fc
+            res = finger_step(m, f, w, r, ro, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo,
+                              saved, saved_contact, saved_sdf)
+            if saved.shape[0] > 0:
+                saved[ro, f] = res
+            f_obj = f_obj + vec3(res[0], res[1], res[2])
+            t_obj = t_obj + vec3(res[3], res[4], res[5])
+            c_sum = c_sum + res[6]
         o = F * J
         # external wrench on the object (world frame, torque about the object origin): the wrench planner
         # drives the object alone with it
@@ -487,5 +562,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     ns = Kernels()
     ns.Model, ns.substep, ns.observe = Model, substep, observe
-    ns.vec3, ns.vec4, ns.mat33 = vec3, vec4, mat33
+    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC = vec3, vec4, mat33, vec7, vecC
     return ns

@@ -205,20 +205,17 @@ class Simulator:
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
     def adjoint_model(self):
-        """Adjoint container for the (constant) model struct: scratch arrays the reverse pass writes model
-        gradients into. Nothing reads them (model parameters are not optimised), so they are never reset."""
+        """Adjoint container for the (constant) model struct. Its arrays are left null and the model's
+        arrays hold no gradient, so the reverse pass skips every model-gradient accumulation (otherwise
+        one read-modify-write per model read, shared by all worlds and threads)."""
         if getattr(self, "_adj_model", None) is None:
-            adj = self.kernels.Model()
-            for name, value in vars(self.model).items():
-                if isinstance(value, wp.array):
-                    setattr(adj, name, wp.zeros_like(value))
-            self._adj_model = adj
+            self._adj_model = self.kernels.Model()
         return self._adj_model
 
     def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
         """Gradient-free step: persistent buffers and launches recorded once, replayed per block."""
         if getattr(self, "_fast", None) is None:
-            traj = Trajectory(self)
+            traj = Trajectory(self, save=False)
             self._fast = (traj, {lo: traj.launches(lo, hi, record=True) for lo, hi in traj.blocks})
         traj, cmds = self._fast
         traj.load(inputs[0], inputs[1], inputs[2:])

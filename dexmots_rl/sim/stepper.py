@@ -43,10 +43,18 @@ def run_blocks(fn, blocks):
 class Trajectory:
     """Buffers and launches for one env step of ``sim.num_worlds`` worlds."""
 
-    def __init__(self, sim):
+    def __init__(self, sim, save: bool = True):
         n, s_count, z = sim.num_worlds, sim.substeps, sim._zeros
         self.sim, self.n = sim, n
         rows = (s_count + 1) * n
+        # per-call results the reverse pass replays instead of recomputing (see kernels.py); row = output
+        # row of the substep. Left empty for gradient-free steps.
+        k, scene = sim.kernels, sim.scene
+        points = scene.num_hand_dofs * scene.points_per_link
+        saved_rows = rows if save else 0
+        self.w_saved = [wp.empty((saved_rows, scene.num_fingers), dtype=k.vec7, device=sim.device),
+                        wp.empty((saved_rows, points), dtype=k.vecC, device=sim.device),
+                        wp.empty((saved_rows, points), dtype=k.vec4, device=sim.device)]
         # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
@@ -72,7 +80,7 @@ class Trajectory:
 
     def _substep_args(self, s: int, lo: int):
         sim = self.sim
-        return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, lo, s * self.n,
+        return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, *self.w_saved, lo, s * self.n,
                 (s + 1) * self.n, sim.sub_dt, 1.0 / sim.substeps]
 
     def launches(self, lo: int, hi: int, record: bool = False):
@@ -118,7 +126,7 @@ class Trajectory:
                 wp.launch(sim.kernels.substep, dim=hi - lo, device=sim.device, adjoint=True,
                           inputs=self._substep_args(s, lo),
                           adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls, *w_adj[2:],
-                                      0, 0, 0, 0.0, 0.0])
+                                      None, None, None, 0, 0, 0, 0.0, 0.0])
 
         run_blocks(reverse, self.blocks)
         # a world that blew up must not poison the others' gradients (the env resets it)
