@@ -370,7 +370,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 pi = i * P + sp
                 rad = m.point_radius[pi]
                 p = x + R * m.point_pos[pi]
-                if rad > dtype(0.0) and wp.length(wp.transpose(Ro) * (p - xo)) < reach + rad:
+                if rad > dtype(0.0) and wp.length(p - xo) < reach + rad:
                     res = point_contact(m, p, rad, Ro, xo, vo, wo, f * J, A, O, qdf, saved_contact, saved_sdf, ro, pi)
                     if saved_contact.shape[0] > 0:
                         saved_contact[ro, pi] = res

@@ -13,6 +13,8 @@ from typing import Callable
 
 import torch
 
+from ..envs.screw_claw import INITIAL_POSES as SCREW_CLAW_POSES
+
 __all__ = ["BenchTask", "BENCH_TASKS", "bench_task", "load_task_scene", "device_name", "measure_rate"]
 
 
@@ -33,7 +35,7 @@ BENCH_TASKS: dict[str, BenchTask] = {
     "screw_claw": BenchTask(
         open_q=(1.047, 0.0, -1.047, 0.0, 0.0),
         close_action=(-1.0, -0.5, 1.0, 0.5),
-        touch_q=(0.5, -0.6, -0.5, 0.6, 0.0),
+        touch_q=(*SCREW_CLAW_POSES["grasp"], 0.0),  # the env's grasp start: resting on the knob (~6 N)
         free_q=(1.2, -0.5, -1.2, 0.5, 0.0),
         squeeze_action=(-0.5, -0.5, 0.5, 0.5),
     ),
