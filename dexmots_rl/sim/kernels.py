@@ -91,6 +91,16 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         v_slip: dtype
         smooth: dtype
 
+    @wp.struct
+    class Saved:
+        """Per-call results a taped step keeps for the reverse pass (rows: a substep's output rows;
+        columns: finger, or sample sphere). Arrays with no rows when the step is not taped."""
+
+        finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
+        contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
+        sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
+        hit: wp.array2d(dtype=wp.int32)  # contact_test: 1 where the sphere is in the contact band
+
     @wp.func
     def softplus(x: dtype, beta: dtype):
         bx = beta * x
@@ -166,7 +176,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
     @wp.func
-    def object_sdf(m: Model, p: vec3, saved: wp.array2d(dtype=vec4), row: int, slot: int):
+    def object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
         """Signed distance (smoothed at edges) and outward unit normal (object frame), packed as
         (d, n). ``saved``/``row``/``slot``: where the caller saves the result for the reverse pass."""
         if wp.static(shape == SHAPE_SPHERE):
@@ -207,8 +217,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     # ran d + 1 times in the reverse pass. A taped forward saves each call's result; the replays below
     # load it, so every function body runs once more in reverse (in its own adjoint) and no more.
     @wp.func_replay(object_sdf)
-    def replay_object_sdf(m: Model, p: vec3, saved: wp.array2d(dtype=vec4), row: int, slot: int):
-        return saved[row, slot]
+    def replay_object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        return saved.sdf[row, slot]
 
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
@@ -244,16 +254,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     @wp.func
     def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                      A: matJ3, O: matJ3, qdf: vecJ, saved: wp.array2d(dtype=vecC),
-                      saved_sdf: wp.array2d(dtype=vec4), row: int, slot: int):
+                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
         """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
 
         Returns, packed in one vector: the force on the finger, the contact point, the normal force
         magnitude and the generalized force on the finger's joints.
         """
-        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved_sdf, row, slot)
-        if saved_sdf.shape[0] > 0:
-            saved_sdf[row, slot] = sd
+        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
+        if saved.sdf.shape[0] > 0:
+            saved.sdf[row, slot] = sd
         phi = rad - sd[0]
         fc = vec3()
         fn = dtype(0.0)
@@ -281,9 +290,36 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     @wp.func_replay(point_contact)
     def replay_point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                             A: matJ3, O: matJ3, qdf: vecJ, saved: wp.array2d(dtype=vecC),
-                             saved_sdf: wp.array2d(dtype=vec4), row: int, slot: int):
-        return saved[row, slot]
+                             A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        return saved.contact[row, slot]
+
+    @wp.func
+    def contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int):
+        """1 when sample sphere pi of a link at (x, R) is within the contact band of the object, else 0.
+
+        A branch condition, so it has no gradient; keeping it out of the differentiated code (empty
+        custom adjoint, replay from the saved flag) spares the reverse pass the sphere's position, its
+        distance test and the signed distance of every sphere near the object but not touching it."""
+        rad = m.point_radius[pi]
+        hit = int(0)
+        if rad > dtype(0.0):
+            p = x + R * m.point_pos[pi]
+            if wp.length(p - xo) < m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta + rad:
+                sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, pi)
+                if rad - sd[0] > -dtype(CONTACT_CUTOFF) / m.beta:
+                    hit = 1
+        if saved.hit.shape[0] > 0:
+            saved.hit[row, pi] = hit
+        return hit
+
+    @wp.func_replay(contact_test)
+    def replay_contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int):
+        return saved.hit[row, pi]
+
+    @wp.func_grad(contact_test)
+    def adj_contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int,
+                         adj_ret: int):
+        return
 
     @wp.func
     def finger_step(
@@ -303,9 +339,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo: vec3,
         vo: vec3,
         wo: vec3,
-        saved: wp.array2d(dtype=vec7),
-        saved_contact: wp.array2d(dtype=vecC),
-        saved_sdf: wp.array2d(dtype=vec4),
+        saved: Saved,
     ):
         """Advance finger f of world w (state row r of q/qd, written to row ro) by one substep; returns the
         contact force and torque (about xo) it puts on the object and its summed normal force, packed.
@@ -315,7 +349,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         f_obj = vec3()
         t_obj = vec3()
         cforce = dtype(0.0)
-        reach = m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta
         R = m.base_rot[f]
         x = m.base_pos[f]
         om = vec3()  # angular velocity of the parent link
@@ -368,12 +401,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # (kept one call deep: the adjoint replays every nesting level of functions)
             for sp in range(P):
                 pi = i * P + sp
-                rad = m.point_radius[pi]
-                p = x + R * m.point_pos[pi]
-                if rad > dtype(0.0) and wp.length(p - xo) < reach + rad:
-                    res = point_contact(m, p, rad, Ro, xo, vo, wo, f * J, A, O, qdf, saved_contact, saved_sdf, ro, pi)
-                    if saved_contact.shape[0] > 0:
-                        saved_contact[ro, pi] = res
+                if contact_test(m, x, R, pi, Ro, xo, saved, ro) != 0:
+                    p = x + R * m.point_pos[pi]
+                    res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
+                    if saved.contact.shape[0] > 0:
+                        saved.contact[ro, pi] = res
                     fc = vec3(res[0], res[1], res[2])
                     cforce = cforce + res[6]
                     f_obj = f_obj - fc
@@ -432,11 +464,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo: vec3,
         vo: vec3,
         wo: vec3,
-        saved: wp.array2d(dtype=vec7),
-        saved_contact: wp.array2d(dtype=vecC),
-        saved_sdf: wp.array2d(dtype=vec4),
+        saved: Saved,
     ):
-        return saved[ro, f]
+        return saved.finger[ro, f]
 
     @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
     def substep(
@@ -451,9 +481,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         ext: wp.array2d(dtype=dtype),
         wrench: wp.array2d(dtype=dtype),
         cforce: wp.array(dtype=dtype),
-        saved: wp.array2d(dtype=vec7),
-        saved_contact: wp.array2d(dtype=vecC),
-        saved_sdf: wp.array2d(dtype=vec4),
+        saved: Saved,
         w0: int,
         in_base: int,
         out_base: int,
@@ -471,10 +499,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         t_obj = vec3()  # about the object origin xo
         c_sum = dtype(0.0)
         for f in range(F):
-            res = finger_step(m, f, w, r, ro, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo,
-                              saved, saved_contact, saved_sdf)
-            if saved.shape[0] > 0:
-                saved[ro, f] = res
+            res = finger_step(m, f, w, r, ro, q, qd, tau, q_target, kp, kd, dt, Ro, xo, vo, wo, saved)
+            if saved.finger.shape[0] > 0:
+                saved.finger[ro, f] = res
             f_obj = f_obj + vec3(res[0], res[1], res[2])
             t_obj = t_obj + vec3(res[3], res[4], res[5])
             c_sum = c_sum + res[6]
@@ -561,6 +588,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         pass
 
     ns = Kernels()
-    ns.Model, ns.substep, ns.observe = Model, substep, observe
+    ns.Model, ns.Saved, ns.substep, ns.observe = Model, Saved, substep, observe
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC = vec3, vec4, mat33, vec7, vecC
     return ns

@@ -52,9 +52,11 @@ class Trajectory:
         k, scene = sim.kernels, sim.scene
         points = scene.num_hand_dofs * scene.points_per_link
         saved_rows = rows if save else 0
-        self.w_saved = [wp.empty((saved_rows, scene.num_fingers), dtype=k.vec7, device=sim.device),
-                        wp.empty((saved_rows, points), dtype=k.vecC, device=sim.device),
-                        wp.empty((saved_rows, points), dtype=k.vec4, device=sim.device)]
+        self.saved = k.Saved()
+        self.saved.finger = wp.empty((saved_rows, scene.num_fingers), dtype=k.vec7, device=sim.device)
+        self.saved.contact = wp.empty((saved_rows, points), dtype=k.vecC, device=sim.device)
+        self.saved.sdf = wp.empty((saved_rows, points), dtype=k.vec4, device=sim.device)
+        self.saved.hit = wp.empty((saved_rows, points), dtype=wp.int32, device=sim.device)
         # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
@@ -80,7 +82,7 @@ class Trajectory:
 
     def _substep_args(self, s: int, lo: int):
         sim = self.sim
-        return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, *self.w_saved, lo, s * self.n,
+        return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, self.saved, lo, s * self.n,
                 (s + 1) * self.n, sim.sub_dt, 1.0 / sim.substeps]
 
     def launches(self, lo: int, hi: int, record: bool = False):
@@ -126,7 +128,7 @@ class Trajectory:
                 wp.launch(sim.kernels.substep, dim=hi - lo, device=sim.device, adjoint=True,
                           inputs=self._substep_args(s, lo),
                           adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls, *w_adj[2:],
-                                      None, None, None, 0, 0, 0, 0.0, 0.0])
+                                      sim.kernels.Saved(), 0, 0, 0, 0.0, 0.0])
 
         run_blocks(reverse, self.blocks)
         # a world that blew up must not poison the others' gradients (the env resets it)

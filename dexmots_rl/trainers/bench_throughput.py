@@ -8,6 +8,8 @@ step is ``substeps`` physics steps of the MJCF's timestep.
 
 * ``fwd``: ``Simulator.step`` with no input requiring grad (no tape).
 * ``fwdbwd``: each step's ``joint_q`` requires grad; step, then backward of the sum of all outputs.
+* ``taped_fwd_ms`` / ``reverse_ms``: one env step's forward kernels with the trajectory kept, and its
+  reverse pass, timed alone (milliseconds for all worlds).
 * ``mujoco``: ``mujoco.rollout.Rollout`` over N copies of the same ``MjModel`` (CPU, one thread per core,
   the calling thread alone for one world), ``nstep = substeps * chunk_steps``.
 
@@ -88,6 +90,22 @@ class SimBench:
         return self.chunk_steps * self.sim.num_worlds
 
 
+    def split_ms(self, min_time: float, sync) -> dict:
+        """Milliseconds per env step (all worlds, no Python around them) of the taped forward kernels and
+        of the reverse pass alone: where ``fwdbwd`` spends its time."""
+        from ..sim.stepper import Trajectory
+
+        traj = Trajectory(self.sim)
+        c = self.control
+        traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.params, torch.zeros_like(c.tau[:, :1]).expand(-1, 6)])
+        grads = [torch.ones_like(t) for t in traj.outputs()]
+        out = {}
+        for name, fn in (("taped_fwd_ms", traj.forward), ("reverse_ms", lambda: traj.backward(grads))):
+            fn()
+            out[name] = 1e3 / measure_rate(lambda: fn() or 1, min_time, sync)
+        return out
+
+
 class MujocoBench:
     """MuJoCo rolling out ``num_envs`` copies of the scene from the same contact state, in threads."""
 
@@ -155,12 +173,14 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
             fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
             row[f"{name}_steps_per_s"] = measure_rate(fn, min_time, sync)
             log.info("num_envs=%d %s: %.0f env-steps/s", n, name, row[f"{name}_steps_per_s"])
+        row.update(ours.split_ms(min_time, sync))
         mj.close()
         if row["contact_fraction"] == 0 or row["mujoco_contact_fraction"] == 0:
             log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %.2f)", n,
                         row["contact_fraction"], row["mujoco_contact_fraction"])
         row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
         rows.append({k: row[k] for k in ("num_envs", "fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s",
-                                         "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction")})
+                                         "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction",
+                                         "taped_fwd_ms", "reverse_ms")})
     return {"task": task, "device": device_name(device), "dt": float(ours.sim.sub_dt), "substeps": substeps,
             "obs": obs, "rows": rows}
