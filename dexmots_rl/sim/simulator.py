@@ -16,7 +16,7 @@ import torch
 import warp as wp
 
 from .kernels import build_kernels
-from .model import MAX_PLANES, ContactParams, SceneModel
+from .model import HINGE, MAX_PLANES, ContactParams, SceneModel
 from .stepper import Trajectory, run_blocks
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
@@ -125,6 +125,7 @@ class Simulator:
             len(scene.object_planes),
             scene.object_kind,
             scene.object_shape,
+            bool((np.asarray(scene.joint_type) == HINGE).all()),
         )
         self.model = self._make_model()
 
