@@ -230,6 +230,46 @@ def test_taped_and_untaped_steps_agree(make_claw_sim):
         assert torch.equal(a, b.detach()), name
 
 
+def test_pooled_trajectories_are_reused_and_released(claw_scene):
+    """Taped steps share pooled trajectories: one goes back after its backward pass (and gives the same
+    gradient when reused), one whose graph is dropped without a backward pass goes back too, and two
+    live graphs never share one."""
+    import gc
+
+    from dexmots_rl.sim import Simulator
+
+    sim = Simulator(claw_scene, num_worlds=2, dtype=torch.float64)
+    q, qd = batch_state(sim, CLAW_CONTACT_Q)
+    tau0 = torch.tensor([[10.0, -5.0, 3.0, 2.0]] * 2, dtype=torch.float64)
+
+    def taped_step():
+        tau = tau0.clone().requires_grad_(True)
+        return tau, sim.step(q, qd, torque(tau), sim.default_params())
+
+    def grad_of_one_step():
+        tau, out = taped_step()
+        (out.joint_qd.sum() + out.wrench.sum()).backward()
+        return tau.grad
+
+    first = grad_of_one_step()
+    assert len(sim._pool) == 1
+    reused = sim._pool[0]
+    second = grad_of_one_step()
+    assert sim._pool == [reused] and float(first.abs().max()) > 0
+    assert torch.equal(first, second)
+
+    (tau_a, out_a), (tau_b, out_b) = taped_step(), taped_step()
+    assert sim._pool == []  # both live graphs hold a trajectory, and not the same one
+    del out_a
+    gc.collect()
+    assert len(sim._pool) == 1  # dropped without backward: released
+    (out_b.joint_qd.sum() + out_b.wrench.sum()).backward()
+    assert torch.equal(tau_b.grad, first)
+    del out_b
+    gc.collect()
+    assert len(sim._pool) == 2 and sim._pool[0] is not sim._pool[1]  # released once, not twice
+
+
 def test_adjoint_clip_caps_only_the_outlier_world(make_claw_sim):
     """With ``adjoint_clip`` a world whose gradient is far above the median world's is scaled down to
     ``adjoint_clip`` x the median (all of its input gradients by one factor); the others are exact."""

@@ -10,6 +10,7 @@ TensorDict), so a step is a pure function and SHAC can chain gradients through m
 from __future__ import annotations
 
 import dataclasses
+import weakref
 
 import numpy as np
 import torch
@@ -17,7 +18,7 @@ import warp as wp
 
 from .kernels import build_kernels
 from .model import HINGE, MAX_PLANES, ContactParams, SceneModel
-from .stepper import Trajectory, run_blocks
+from .stepper import Trajectory
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
 
@@ -214,14 +215,25 @@ class Simulator:
         return self._adj_model
 
     def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
-        """Gradient-free step: persistent buffers and launches recorded once, replayed per block."""
+        """Gradient-free step on one persistent trajectory (no saved intermediates)."""
         if getattr(self, "_fast", None) is None:
-            traj = Trajectory(self, save=False)
-            self._fast = (traj, {lo: traj.launches(lo, hi, record=True) for lo, hi in traj.blocks})
-        traj, cmds = self._fast
-        traj.load(inputs[0], inputs[1], inputs[2:])
-        run_blocks(lambda lo, hi: [cmd.launch() for cmd in cmds[lo]], traj.blocks)
-        return traj.outputs()
+            self._fast = Trajectory(self, save=False)
+        self._fast.load(inputs[0], inputs[1], inputs[2:])
+        self._fast.forward()
+        return self._fast.outputs()
+
+    def _take_trajectory(self) -> tuple[Trajectory, int]:
+        """A taped trajectory from the pool and its lease: hand both back with :meth:`_return_trajectory`
+        after the backward pass, or when the step's graph is dropped without one."""
+        pool = self.__dict__.setdefault("_pool", [])
+        traj = pool.pop() if pool else Trajectory(self)
+        traj.lease += 1
+        return traj, traj.lease
+
+    def _return_trajectory(self, traj: Trajectory, lease: int) -> None:
+        if traj.lease == lease:  # not returned already for this lease (backward, then the graph's release)
+            traj.lease += 1
+            self._pool.append(traj)
 
 
 def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor]) -> list[torch.Tensor]:
@@ -240,8 +252,9 @@ def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor]) -> list[torc
 
 
 class SimStep(torch.autograd.Function):
-    """One env step as an autograd Function: when an input needs a gradient, forward keeps the step's
-    substep trajectory and backward runs the kernels' adjoints over it in reverse (no tape, no
+    """One env step as an autograd Function: when an input needs a gradient, forward runs on a pooled
+    trajectory that keeps the step's substeps and the intermediates the reverse pass replays, and
+    backward runs the kernels' adjoints over it in reverse, then returns it to the pool (no tape, no
     trajectory and no gradient buffers otherwise). Inputs: ``sim, joint_q, joint_qd, tau,
     q_target, kp, kd, params, object_wrench``; outputs as :class:`StepOutput`."""
 
@@ -252,7 +265,9 @@ class SimStep(torch.autograd.Function):
         if not any(ctx.needs_input_grad[1:]):
             ctx.traj = None
             return tuple(sim._replay(inputs))
-        traj = Trajectory(sim)
+        traj, ctx.lease = sim._take_trajectory()
+        # the trajectory goes back to the pool after backward, or when the graph is dropped without one
+        weakref.finalize(ctx, sim._return_trajectory, traj, ctx.lease)
         traj.load(inputs[0], inputs[1], inputs[2:])
         traj.forward()
         ctx.traj = traj
@@ -264,6 +279,7 @@ class SimStep(torch.autograd.Function):
             raise RuntimeError("SimStep supports one backward pass per forward (retain_graph / double "
                                "backward is not supported): step again to differentiate again")
         grads = ctx.traj.backward(grad_outputs)
+        ctx.sim._return_trajectory(ctx.traj, ctx.lease)
         ctx.traj = None
         if ctx.sim.adjoint_clip is not None:
             grads = _clip_outlier_worlds(ctx.sim, grads)

@@ -41,11 +41,16 @@ def run_blocks(fn, blocks):
 
 
 class Trajectory:
-    """Buffers and launches for one env step of ``sim.num_worlds`` worlds."""
+    """Buffers and launches for one env step of ``sim.num_worlds`` worlds.
+
+    A trajectory is reusable: its launches (forward, and the adjoint ones when ``save``) are recorded
+    once, with every buffer bound, and replayed on each use, which keeps Python out of the per-step
+    cost. The simulator pools taped trajectories and takes one back after its backward pass.
+    """
 
     def __init__(self, sim, save: bool = True):
         n, s_count, z = sim.num_worlds, sim.substeps, sim._zeros
-        self.sim, self.n = sim, n
+        self.sim, self.n, self.save = sim, n, save
         rows = (s_count + 1) * n
         # per-call results the reverse pass replays instead of recomputing (see kernels.py); row = output
         # row of the substep. Left empty for gradient-free steps.
@@ -62,15 +67,17 @@ class Trajectory:
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
         self.blocks = world_blocks(n, sim.device)
-        self._wrap()
+        self.w_traj, self.w_acc, self.w_controls, self.w_final, self.w_obs = self._wrap(
+            self.q, self.qd, self.wrench, self.cforce, self.controls, self.pose, self.tips)
+        self._forward_cmds = {lo: self._launches(lo, hi) for lo, hi in self.blocks}
+        self._reverse_cmds = None  # recorded at the first backward pass
+        self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
 
-    def _wrap(self):
+    def _wrap(self, q, qd, wrench, cforce, controls, pose, tips):
         last = self.sim.substeps * self.n
-        self.w_traj = [wp.from_torch(t) for t in (self.q, self.qd)]
-        self.w_acc = [wp.from_torch(t) for t in (self.wrench, self.cforce)]
-        self.w_controls = [wp.from_torch(t) for t in self.controls]
-        self.w_final = [wp.from_torch(self.q[last:]), wp.from_torch(self.qd[last:])]
-        self.w_obs = [wp.from_torch(self.pose), wp.from_torch(self.tips)]
+        return ([wp.from_torch(q), wp.from_torch(qd)], [wp.from_torch(wrench), wp.from_torch(cforce)],
+                [wp.from_torch(t) for t in controls], [wp.from_torch(q[last:]), wp.from_torch(qd[last:])],
+                [wp.from_torch(pose), wp.from_torch(tips)])
 
     def load(self, q, qd, controls) -> None:
         n = self.n
@@ -85,18 +92,29 @@ class Trajectory:
         return [sim.model, *self.w_traj, *self.w_controls, *self.w_acc, self.saved, lo, s * self.n,
                 (s + 1) * self.n, sim.sub_dt, 1.0 / sim.substeps]
 
-    def launches(self, lo: int, hi: int, record: bool = False):
-        """The forward launches of block [lo, hi); recorded (not run) when ``record``."""
-        sim, out = self.sim, []
-        for s in range(sim.substeps):
-            out.append(wp.launch(sim.kernels.substep, dim=hi - lo, inputs=self._substep_args(s, lo),
-                                 device=sim.device, record_cmd=record))
-        out.append(wp.launch(sim.kernels.observe, dim=hi - lo, inputs=[sim.model, *self.w_final, *self.w_obs, lo],
-                             device=sim.device, record_cmd=record))
+    def _launches(self, lo: int, hi: int, adjoint: bool = False):
+        """The recorded launches of block [lo, hi): the substeps then the observation, or, with
+        ``adjoint``, their adjoints in reverse order."""
+        sim, dim = self.sim, hi - lo
+        observe_args = [sim.model, *self.w_final, *self.w_obs, lo]
+        if not adjoint:
+            out = [wp.launch(sim.kernels.substep, dim=dim, inputs=self._substep_args(s, lo), device=sim.device,
+                             record_cmd=True) for s in range(sim.substeps)]
+            return out + [wp.launch(sim.kernels.observe, dim=dim, inputs=observe_args, device=sim.device,
+                                    record_cmd=True)]
+        adj_traj, adj_acc, adj_controls, adj_final, adj_obs = self._adj_wrapped
+        adj_model = sim.adjoint_model()
+        out = [wp.launch(sim.kernels.observe, dim=dim, inputs=observe_args, device=sim.device, adjoint=True,
+                         adj_inputs=[adj_model, *adj_final, *adj_obs, 0], record_cmd=True)]
+        for s in reversed(range(sim.substeps)):
+            out.append(wp.launch(sim.kernels.substep, dim=dim, inputs=self._substep_args(s, lo), device=sim.device,
+                                 adjoint=True, record_cmd=True,
+                                 adj_inputs=[adj_model, *adj_traj, *adj_controls, *adj_acc, sim.kernels.Saved(),
+                                             0, 0, 0, 0.0, 0.0]))
         return out
 
     def forward(self) -> None:
-        run_blocks(lambda lo, hi: self.launches(lo, hi), self.blocks)
+        run_blocks(lambda lo, hi: [cmd.launch() for cmd in self._forward_cmds[lo]], self.blocks)
 
     def outputs(self) -> list[torch.Tensor]:
         last, sim = self.sim.substeps * self.n, self.sim
@@ -106,31 +124,24 @@ class Trajectory:
     def backward(self, grad_outputs) -> list[torch.Tensor]:
         """Reverse pass: adjoints of (q, qd, wrench, contact_force, pose, tips) -> adjoints of
         (joint_q, joint_qd, tau, q_target, kp, kd, params, object_wrench)."""
-        sim, n, last = self.sim, self.n, self.sim.substeps * self.n
-        adj = [torch.zeros_like(t) for t in (self.q, self.qd, self.wrench, self.cforce)]
-        adj_controls = [torch.zeros_like(t) for t in self.controls]
-        adj_obs = [torch.zeros_like(self.pose), torch.zeros_like(self.tips)]
-        for target, g in zip(adj + adj_obs, grad_outputs):
+        if not self.save:
+            raise RuntimeError("this trajectory was run without saving the reverse pass's intermediates")
+        n, last = self.n, self.sim.substeps * self.n
+        if self._reverse_cmds is None:
+            # adjoints of the same buffers, zeroed before each reverse pass
+            self.adj = [torch.zeros_like(t) for t in (self.q, self.qd, self.wrench, self.cforce)]
+            self.adj_controls = [torch.zeros_like(t) for t in self.controls]
+            self.adj_obs = [torch.zeros_like(self.pose), torch.zeros_like(self.tips)]
+            self._adj_wrapped = self._wrap(*self.adj, self.adj_controls, *self.adj_obs)
+            self._reverse_cmds = {lo: self._launches(lo, hi, adjoint=True) for lo, hi in self.blocks}
+        for buf in (*self.adj, *self.adj_controls, *self.adj_obs):
+            buf.zero_()
+        for target, g in zip(self.adj + self.adj_obs, grad_outputs):
             if g is not None:
                 rows = target[last:] if target.shape[0] != n else target
                 rows.copy_(g.reshape(rows.shape))
-        w_adj = [wp.from_torch(t) for t in adj]
-        w_adj_controls = [wp.from_torch(t) for t in adj_controls]
-        w_adj_final = [wp.from_torch(adj[0][last:]), wp.from_torch(adj[1][last:])]
-        w_adj_obs = [wp.from_torch(t) for t in adj_obs]
-        adj_model = sim.adjoint_model()
-
-        def reverse(lo, hi):
-            wp.launch(sim.kernels.observe, dim=hi - lo, device=sim.device, adjoint=True,
-                      inputs=[sim.model, *self.w_final, *self.w_obs, lo],
-                      adj_inputs=[adj_model, *w_adj_final, *w_adj_obs, 0])
-            for s in reversed(range(sim.substeps)):
-                wp.launch(sim.kernels.substep, dim=hi - lo, device=sim.device, adjoint=True,
-                          inputs=self._substep_args(s, lo),
-                          adj_inputs=[adj_model, *w_adj[:2], *w_adj_controls, *w_adj[2:],
-                                      sim.kernels.Saved(), 0, 0, 0, 0.0, 0.0])
-
-        run_blocks(reverse, self.blocks)
-        # a world that blew up must not poison the others' gradients (the env resets it)
-        grads = [adj[0][:n], adj[1][:n], *adj_controls]
+        run_blocks(lambda lo, hi: [cmd.launch() for cmd in self._reverse_cmds[lo]], self.blocks)
+        # a world that blew up must not poison the others' gradients (the env resets it); nan_to_num
+        # also copies, so the returned gradients outlive the buffers' reuse
+        grads = [self.adj[0][:n], self.adj[1][:n], *self.adj_controls]
         return [torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0) for g in grads]
