@@ -183,6 +183,65 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
     @wp.func
+    def polytope_max(m: Model, p: vec3):
+        hi = dtype(-1e9)
+        for k in range(K):
+            pl = m.planes[k]
+            hi = wp.max(hi, pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3])
+        return hi
+
+    @wp.func
+    def face_weight(m: Model, p: vec3, k: int, hi: dtype):
+        """exp((g_k - hi) / smooth) of face k, 0 for faces far below the max (weight < e^-LSE_CUTOFF)."""
+        pl = m.planes[k]
+        gap = pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi
+        if gap > dtype(-LSE_CUTOFF) * m.smooth:
+            return wp.exp(gap / m.smooth)
+        return dtype(0.0)
+
+    @wp.func
+    def polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        """Convex polytope: log-sum-exp smooth max over the face planes g_k = n_k . p - d_k: distance
+        hi + smooth log(sum_k w_k) and normal u / |u|, u = sum_k w_k n_k, w_k = face_weight."""
+        hi = polytope_max(m, p)
+        total = dtype(0.0)
+        u = vec3()
+        for k in range(K):
+            w = face_weight(m, p, k, hi)
+            total = total + w
+            u = u + w * vec3(m.planes[k][0], m.planes[k][1], m.planes[k][2])
+        n = wp.normalize(u)
+        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+
+    @wp.func_replay(polytope_sdf)
+    def replay_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        return saved.sdf[row, slot]
+
+    @wp.func_grad(polytope_sdf)
+    def adj_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int, adj_ret: vec4):
+        # d = smooth log sum_k exp(g_k / smooth), so dd/dp = u / sum_k w_k. The normal u / |u| does not
+        # change with the common factor exp(-h / smooth), so only du/dp = S / smooth matters, with
+        # S = sum_k w_k n_k n_k^T, projected off u. One pass over the faces instead of the generated
+        # adjoint's replay of both face loops plus an adjoint per face.
+        hi = polytope_max(m, p)
+        total = dtype(0.0)
+        u = vec3()
+        S = mat33()
+        for k in range(K):
+            w = face_weight(m, p, k, hi)
+            nk = vec3(m.planes[k][0], m.planes[k][1], m.planes[k][2])
+            total = total + w
+            u = u + w * nk
+            S = S + w * wp.outer(nk, nk)
+        length = wp.length(u)
+        adj_n = vec3(adj_ret[1], adj_ret[2], adj_ret[3])
+        adj_u = vec3()
+        if length > dtype(0.0):
+            n = u / length
+            adj_u = (adj_n - n * wp.dot(n, adj_n)) / length
+        wp.adjoint[p] += adj_ret[0] * u / total + S * adj_u / m.smooth
+
+    @wp.func
     def object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
         """Signed distance (smoothed at edges) and outward unit normal (object frame), packed as
         (d, n). ``saved``/``row``/``slot``: where the caller saves the result for the reverse pass."""
@@ -202,22 +261,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         if wp.static(shape == SHAPE_SDF):
             d, n = grid_sdf(m, p)
             return vec4(d, n[0], n[1], n[2])
-        # convex polytope: log-sum-exp smooth max over face planes
-        hi = dtype(-1e9)
-        for k in range(K):
-            pl = m.planes[k]
-            hi = wp.max(hi, pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3])
-        total = dtype(0.0)
-        n = vec3(dtype(0.0), dtype(0.0), dtype(0.0))
-        for k in range(K):
-            pl = m.planes[k]
-            gap = pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi
-            if gap > dtype(-LSE_CUTOFF) * m.smooth:  # faces far below the max weigh < e^-LSE_CUTOFF
-                w = wp.exp(gap / m.smooth)
-                total = total + w
-                n = n + w * vec3(pl[0], pl[1], pl[2])
-        n = wp.normalize(n)
-        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+        return polytope_sdf(m, p, saved, row, slot)
 
     # Replays: warp's adjoint of a function first re-runs the function's forward to get its
     # intermediates, and the adjoint of a caller re-runs its callees too, so a function nested d deep
