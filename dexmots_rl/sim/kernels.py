@@ -106,6 +106,33 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         hit: wp.array2d(dtype=wp.int32)  # contact_test: 1 where the sphere is in the contact band
 
+    # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
+    # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
+    # work of a product with a constant matrix), where a plain read keeps them alive for a runtime check.
+    @wp.func
+    def fixed_vec3(a: wp.array(dtype=vec3), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_vec3)
+    def adj_fixed_vec3(a: wp.array(dtype=vec3), i: int, adj_ret: vec3):
+        return
+
+    @wp.func
+    def fixed_mat33(a: wp.array(dtype=mat33), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_mat33)
+    def adj_fixed_mat33(a: wp.array(dtype=mat33), i: int, adj_ret: mat33):
+        return
+
+    @wp.func
+    def fixed(a: wp.array(dtype=dtype), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed)
+    def adj_fixed(a: wp.array(dtype=dtype), i: int, adj_ret: dtype):
+        return
+
     @wp.func
     def softplus(x: dtype, beta: dtype):
         bx = beta * x
@@ -306,16 +333,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return Jw
 
     @wp.func
-    def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+    def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
                       A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
-        """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
-
-        Returns, packed in one vector: the force on the finger, the contact point, the normal force
-        magnitude and the generalized force on the finger's joints.
-        """
-        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
-        if saved.sdf.shape[0] > 0:
-            saved.sdf[row, slot] = sd
+        """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
+        (object frame) are ``sd``; packed result as :func:`point_contact`'s."""
         phi = rad - sd[0]
         fc = vec3()
         fn = dtype(0.0)
@@ -340,6 +361,108 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         for j in range(J):
             res[7 + j] = gen[j]
         return res
+
+    @wp.func_replay(contact_force)
+    def replay_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
+                             base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        return saved.contact[row, slot]
+
+    @wp.func_grad(contact_force)
+    def adj_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
+                          base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int,
+                          adj_ret: vecC):
+        # Hand-written reverse of contact_force (the generated one re-ran the whole law and then
+        # differentiated it op by op): recompute the forward's intermediates, then walk them back.
+        # Model parameters (and the sphere radius) are constants: no adjoint.
+        a_fc = vec3(adj_ret[0], adj_ret[1], adj_ret[2])
+        a_cp = vec3(adj_ret[3], adj_ret[4], adj_ret[5])
+        a_fn = adj_ret[6]
+        phi = rad - sd[0]
+        if phi > -dtype(CONTACT_CUTOFF) / m.beta:
+            n_o = vec3(sd[1], sd[2], sd[3])
+            n = Ro * n_o
+            cp = p - n * rad
+            Jv = point_jacobian(m.jtype, base, A, O, cp)
+            r = cp - xo
+            v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, r)
+            vn = wp.dot(v_rel, n)
+            sp = softplus(phi, m.beta)
+            damp_arg = dtype(1.0) - m.kd * vn
+            damp = wp.max(damp_arg, dtype(0.0))
+            fn = m.ke * sp * damp
+            vt = v_rel - vn * n
+            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+            c = -m.mu / den
+            fc = fn * n + c * fn * vt
+            a_gen = vecJ()
+            for j in range(J):
+                a_gen[j] = adj_ret[7 + j]
+            # gen = Jv fc
+            a_fc = a_fc + wp.transpose(Jv) * a_gen
+            a_Jv = wp.outer(a_gen, fc)
+            # fc = fn n + ft, ft = c(vt) fn vt with c = -mu / sqrt(|vt|^2 + v_slip^2)
+            a_fn = a_fn + wp.dot(a_fc, n) + c * wp.dot(vt, a_fc)
+            a_n = fn * a_fc
+            a_vt = c * fn * a_fc + (m.mu * fn * wp.dot(vt, a_fc) / (den * den * den)) * vt
+            # vt = v_rel - vn n
+            a_vrel = a_vt
+            a_vn = -wp.dot(a_vt, n)
+            a_n = a_n - vn * a_vt
+            # fn = ke softplus(phi) max(1 - kd vn, 0)
+            if damp_arg > dtype(0.0):
+                a_vn = a_vn - m.kd * a_fn * m.ke * sp
+            a_phi = a_fn * m.ke * damp / (dtype(1.0) + wp.exp(-m.beta * phi))  # softplus' = sigmoid
+            # vn = v_rel . n
+            a_vrel = a_vrel + a_vn * n
+            a_n = a_n + a_vn * v_rel
+            # v_rel = Jv^T qdf - vo - wo x r, r = cp - xo
+            wp.adjoint[qdf] += Jv * a_vrel
+            a_Jv = a_Jv + wp.outer(qdf, a_vrel)
+            wp.adjoint[vo] += -a_vrel
+            wp.adjoint[wo] += wp.cross(a_vrel, r)
+            a_r = wp.cross(wo, a_vrel)
+            a_cp = a_cp + a_r
+            wp.adjoint[xo] += -a_r
+            # Jv row j: A_j x (cp - O_j) for a hinge, A_j for a slider
+            a_A = matJ3()
+            a_O = matJ3()
+            for j in range(J):
+                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
+                is_hinge = True
+                if wp.static(not HINGES_ONLY):
+                    is_hinge = m.jtype[base + j] == HINGE
+                if is_hinge:
+                    a_axis = wp.cross(vec3(cp[0] - O[j, 0], cp[1] - O[j, 1], cp[2] - O[j, 2]), a_row)
+                    a_point = wp.cross(a_row, axis)
+                    a_cp = a_cp + a_point
+                    a_O = a_O - wp.outer(unit_j(j), a_point)
+                else:
+                    a_axis = a_row
+                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            wp.adjoint[A] += a_A
+            wp.adjoint[O] += a_O
+            # cp = p - rad n, n = Ro n_o, phi = rad - d
+            wp.adjoint[p] += a_cp
+            a_n = a_n - rad * a_cp
+            wp.adjoint[Ro] += wp.outer(a_n, n_o)
+            a_no = wp.transpose(Ro) * a_n
+            wp.adjoint[sd] += vec4(-a_phi, a_no[0], a_no[1], a_no[2])
+        else:
+            wp.adjoint[p] += a_cp  # out of the band: the result is (0, p, 0, 0)
+
+    @wp.func
+    def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
+
+        Returns, packed in one vector: the force on the finger, the contact point, the normal force
+        magnitude and the generalized force on the finger's joints.
+        """
+        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
+        if saved.sdf.shape[0] > 0:
+            saved.sdf[row, slot] = sd
+        return contact_force(m, p, rad, sd, Ro, xo, vo, wo, base, A, O, qdf, saved, row, slot)
 
     @wp.func_replay(point_contact)
     def replay_point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
@@ -402,8 +525,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         f_obj = vec3()
         t_obj = vec3()
         cforce = dtype(0.0)
-        R = m.base_rot[f]
-        x = m.base_pos[f]
+        R = fixed_mat33(m.base_rot, f)
+        x = fixed_vec3(m.base_pos, f)
         om = vec3()  # angular velocity of the parent link
         al = vec3()  # its angular acceleration (velocity-product part, qdd = 0)
         acc = -m.gravity  # acceleration of the parent's joint origin (gravity as base acceleration)
@@ -419,9 +542,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         for k in range(J):
             i = f * J + k
             jt = m.jtype[i]
-            x = x + R * m.off_pos[i]
-            R = R * m.off_rot[i]
-            a = R * m.axis[i]
+            x = x + R * fixed_vec3(m.off_pos, i)
+            R = R * fixed_mat33(m.off_rot, i)
+            a = R * fixed_vec3(m.axis, i)
             qk = q[r, i]
             qdk = qd[r, i]
             if wp.static(not HINGES_ONLY):
@@ -430,12 +553,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             lever = x - o_prev
             acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
             if wp.static(HINGES_ONLY):
-                R = R * axis_angle(m.axis[i], qk)
+                R = R * axis_angle(fixed_vec3(m.axis, i), qk)
                 al = al + wp.cross(om, a * qdk)
                 om = om + a * qdk
             else:
                 if jt == HINGE:
-                    R = R * axis_angle(m.axis[i], qk)
+                    R = R * axis_angle(fixed_vec3(m.axis, i), qk)
                     al = al + wp.cross(om, a * qdk)
                     om = om + a * qdk
                 else:
@@ -448,20 +571,20 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             O = O + wp.outer(ek, x)
             A = A + wp.outer(ek, a)
             # link inertia: mass matrix and bias-force contributions through the Jacobian
-            cw = x + R * m.com[i]
-            Iw = R * m.inertia[i] * wp.transpose(R)
+            cw = x + R * fixed_vec3(m.com, i)
+            Iw = R * fixed_mat33(m.inertia, i) * wp.transpose(R)
             rc = cw - x
             a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
             Jv = point_jacobian(m.jtype, f * J, A, O, cw)
             Jw = angular_jacobian(m.jtype, f * J, A)
-            M = M + m.mass[i] * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
-            bias = bias + Jv * (m.mass[i] * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
+            M = M + fixed(m.mass, i) * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
+            bias = bias + Jv * (fixed(m.mass, i) * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
             # contact of this link's sample spheres: a distance test each, the work only near the object
             # (kept one call deep: the adjoint replays every nesting level of functions)
             for sp in range(P):
                 pi = i * P + sp
                 if contact_test(m, x, R, pi, Ro, xo, saved, ro) != 0:
-                    p = x + R * m.point_pos[pi]
+                    p = x + R * fixed_vec3(m.point_pos, pi)
                     res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
                     if saved.contact.shape[0] > 0:
                         saved.contact[ro, pi] = res
@@ -483,17 +606,17 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # otherwise asks for kp * error, ~10x what the motor can give)
             drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
             gain = dt * kd[w, i] + dt * dt * kp[w, i]
-            effort = m.effort[i]
+            effort = fixed(m.effort, i)
             if effort > dtype(0.0):
                 sat = wp.tanh(drive / effort)
                 drive = effort * sat
                 gain = gain * (dtype(1.0) - sat * sat)
-            diag[k, k] = m.armature[i] + dt * m.damping[i] + gain
-            lim = m.limit_ke[i] * (
-                limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i])
+            diag[k, k] = fixed(m.armature, i) + dt * fixed(m.damping, i) + gain
+            lim = fixed(m.limit_ke, i) * (
+                limit_ramp(fixed(m.lower, i) - qk) - limit_ramp(qk - fixed(m.upper, i))
             )
-            fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
-            rhs[k] = tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[k] - bias[k]
+            fric = fixed(m.friction, i) * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+            rhs[k] = tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[k] - bias[k]
         if wp.static(J == 1):
             qdd = vecJ(rhs[0] / (M[0, 0] + diag[0, 0]))
         else:
