@@ -771,6 +771,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     ns = Kernels()
     ns.Model, ns.Saved, ns.substep, ns.observe = Model, Saved, substep, observe
-    ns.object_sdf = object_sdf  # for kernels that probe the contact geometry (tests)
-    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC = vec3, vec4, mat33, vec7, vecC
+    ns.object_sdf, ns.contact_force = object_sdf, contact_force  # for probe kernels (tests of the hand adjoints)
+    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3
     return ns
