@@ -1,4 +1,5 @@
-"""dexmots-bench grad (AD vs finite differences, growth statistics) and train over seeds, on tiny configurations."""
+"""dexmots-bench throughput, grad (AD vs finite differences, growth statistics) and train over seeds, on tiny
+configurations."""
 
 from __future__ import annotations
 
@@ -7,6 +8,17 @@ import math
 import pytest
 
 from dexmots_rl.trainers.bench import format_table, run
+
+
+def test_throughput_bench_reports_every_rate_in_contact():
+    result = run(["throughput", "--task", "screw_claw", "--num-envs", "2", "--min-time", "0.05",
+                  "--settle-steps", "20", "--chunk-steps", "2", "--quiet"])
+    (row,) = result["rows"]
+    assert row["num_envs"] == 2 and row["contact_fraction"] == 1.0 and row["mujoco_contact_fraction"] == 1.0
+    for key in ("fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s", "taped_fwd_ms", "reverse_ms"):
+        assert math.isfinite(row[key]) and row[key] > 0, key
+    assert row["fwd_steps_per_s"] > row["fwdbwd_steps_per_s"]  # the backward pass is not free
+    assert row["ratio_vs_mujoco"] == pytest.approx(row["fwd_steps_per_s"] / row["mujoco_steps_per_s"])
 
 
 def test_grad_bench_rows_agree_with_finite_differences():
