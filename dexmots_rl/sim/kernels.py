@@ -11,6 +11,7 @@ wrong). Everything is generic in the float type so gradient checks can run in fl
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
 import functools
+import math
 import os
 
 import warp as wp
@@ -29,6 +30,7 @@ CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONT
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
 LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
+LOG_FACES_MARGIN = 1.001  # slack on the bound log(sum of face weights) <= log(faces), for rounding
 FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
 
 
@@ -42,6 +44,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
     HINGES_ONLY = bool(hinges_only)
+    LOG_FACES = LOG_FACES_MARGIN * math.log(max(K, 1))  # the most a polytope's smooth max adds to the max
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -477,13 +480,26 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         custom adjoint, replay from the saved flag) spares the reverse pass the sphere's position, its
         distance test and the signed distance of every sphere near the object but not touching it."""
         rad = m.point_radius[pi]
+        band = rad + dtype(CONTACT_CUTOFF) / m.beta  # in contact when the signed distance is below this
         hit = int(0)
         if rad > dtype(0.0):
             p = x + R * m.point_pos[pi]
-            if wp.length(p - xo) < m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta + rad:
-                sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, pi)
-                if rad - sd[0] > -dtype(CONTACT_CUTOFF) / m.beta:
-                    hit = 1
+            if wp.length(p - xo) < m.obj_bound + band:
+                local = wp.transpose(Ro) * (p - xo)
+                decided = False
+                if wp.static(shape != SHAPE_SPHERE and shape != SHAPE_CYLINDER and shape != SHAPE_SDF):
+                    # a polytope's smooth distance lies in [max face distance, + smooth log(faces)]:
+                    # most spheres are decided by the max alone, without the exponentials
+                    hi = polytope_max(m, local)
+                    if hi >= band:
+                        decided = True
+                    elif hi + m.smooth * dtype(LOG_FACES) < band:
+                        decided = True
+                        hit = 1
+                if not decided:
+                    sd = object_sdf(m, local, saved, row, pi)
+                    if sd[0] < band:
+                        hit = 1
         if saved.hit.shape[0] > 0:
             saved.hit[row, pi] = hit
         return hit
