@@ -55,6 +55,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     matJ3 = wp.types.matrix((J, 3), dtype)
     vec7 = wp.types.vector(7, dtype)  # a finger's saved result: force, torque on the object, normal force
     vecC = wp.types.vector(7 + J, dtype)  # a contact's saved result: force, point, normal force, joint forces
+    mat43 = wp.types.matrix((4, 3), dtype)  # Jacobian of (signed distance, normal) w.r.t. the query point
 
     @wp.struct
     class Model:
@@ -107,6 +108,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
         contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
+        sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
         hit: wp.array2d(dtype=wp.int32)  # contact_test: 1 where the sphere is in the contact band
 
     # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
@@ -232,27 +234,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     @wp.func
     def polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
         """Convex polytope: log-sum-exp smooth max over the face planes g_k = n_k . p - d_k: distance
-        hi + smooth log(sum_k w_k) and normal u / |u|, u = sum_k w_k n_k, w_k = face_weight."""
-        hi = polytope_max(m, p)
-        total = dtype(0.0)
-        u = vec3()
-        for k in range(K):
-            w = face_weight(m, p, k, hi)
-            total = total + w
-            u = u + w * vec3(m.planes[k][0], m.planes[k][1], m.planes[k][2])
-        n = wp.normalize(u)
-        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+        hi + smooth log(sum_k w_k) and normal u / |u|, u = sum_k w_k n_k, w_k = face_weight.
 
-    @wp.func_replay(polytope_sdf)
-    def replay_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
-        return saved.sdf[row, slot]
-
-    @wp.func_grad(polytope_sdf)
-    def adj_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int, adj_ret: vec4):
-        # d = smooth log sum_k exp(g_k / smooth), so dd/dp = u / sum_k w_k. The normal u / |u| does not
-        # change with the common factor exp(-h / smooth), so only du/dp = S / smooth matters, with
-        # S = sum_k w_k n_k n_k^T, projected off u. One pass over the faces instead of the generated
-        # adjoint's replay of both face loops plus an adjoint per face.
+        A taped step also saves the result's Jacobian for the hand-written adjoint: d = smooth log
+        sum_k exp(g_k / smooth) gives dd/dp = u / sum_k w_k; the normal does not change with the common
+        factor exp(-hi / smooth), so dn/dp = (I - n n^T) S / (smooth |u|) with S = sum_k w_k n_k n_k^T."""
+        keep = saved.sdf_jac.shape[0] > 0
         hi = polytope_max(m, p)
         total = dtype(0.0)
         u = vec3()
@@ -262,14 +249,27 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             nk = vec3(m.planes[k][0], m.planes[k][1], m.planes[k][2])
             total = total + w
             u = u + w * nk
-            S = S + w * wp.outer(nk, nk)
-        length = wp.length(u)
-        adj_n = vec3(adj_ret[1], adj_ret[2], adj_ret[3])
-        adj_u = vec3()
-        if length > dtype(0.0):
-            n = u / length
-            adj_u = (adj_n - n * wp.dot(n, adj_n)) / length
-        wp.adjoint[p] += adj_ret[0] * u / total + S * adj_u / m.smooth
+            if keep:
+                S = S + w * wp.outer(nk, nk)
+        n = wp.normalize(u)
+        if keep:
+            length = wp.length(u)
+            dn = mat33()
+            if length > dtype(0.0):
+                dn = (wp.identity(n=3, dtype=dtype) - wp.outer(n, n)) * S / (m.smooth * length)
+            g = u / total
+            saved.sdf_jac[row, slot] = mat43(g[0], g[1], g[2], dn[0, 0], dn[0, 1], dn[0, 2],
+                                             dn[1, 0], dn[1, 1], dn[1, 2], dn[2, 0], dn[2, 1], dn[2, 2])
+        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+
+    @wp.func_replay(polytope_sdf)
+    def replay_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        return saved.sdf[row, slot]
+
+    @wp.func_grad(polytope_sdf)
+    def adj_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int, adj_ret: vec4):
+        # the Jacobian saved by the taped forward: no replay of the face loops, no per-face adjoints
+        wp.adjoint[p] += wp.transpose(saved.sdf_jac[row, slot]) * adj_ret
 
     @wp.func
     def object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
@@ -788,5 +788,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns = Kernels()
     ns.Model, ns.Saved, ns.substep, ns.observe = Model, Saved, substep, observe
     ns.object_sdf, ns.contact_force = object_sdf, contact_force  # for probe kernels (tests of the hand adjoints)
-    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3
+    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
     return ns
