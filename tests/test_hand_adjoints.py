@@ -18,8 +18,7 @@ EPS = 1e-6
 def _saved(ns, device, n, field):
     """A Saved struct whose ``field`` has one row of n slots (what the probe's replay reads back)."""
     saved = ns.Saved()
-    for name, dtype in (("finger", ns.vec7), ("contact", ns.vecC), ("sdf", ns.vec4), ("sdf_jac", ns.mat43),
-                        ("hit", wp.int32)):
+    for name, dtype in (("finger", ns.vec7), ("contact", ns.vecC), ("sdf", ns.vec4), ("sdf_jac", ns.mat43)):
         setattr(saved, name, wp.zeros((1, n) if name.startswith(field) else (0, 1), dtype=dtype, device=device))
     return saved
 

@@ -11,7 +11,6 @@ wrong). Everything is generic in the float type so gradient checks can run in fl
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
 import functools
-import math
 import os
 
 import warp as wp
@@ -30,7 +29,6 @@ CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONT
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
 LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
-LOG_FACES_MARGIN = 1.001  # slack on the bound log(sum of face weights) <= log(faces), for rounding
 FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
 
 
@@ -44,7 +42,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
     HINGES_ONLY = bool(hinges_only)
-    LOG_FACES = LOG_FACES_MARGIN * math.log(max(K, 1))  # the most a polytope's smooth max adds to the max
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -109,7 +106,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
-        hit: wp.array2d(dtype=wp.int32)  # contact_test: 1 where the sphere is in the contact band
 
     # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
     # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
@@ -473,44 +469,18 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return saved.contact[row, slot]
 
     @wp.func
-    def contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int):
-        """1 when sample sphere pi of a link at (x, R) is within the contact band of the object, else 0.
-
-        A branch condition, so it has no gradient; keeping it out of the differentiated code (empty
-        custom adjoint, replay from the saved flag) spares the reverse pass the sphere's position, its
-        distance test and the signed distance of every sphere near the object but not touching it."""
+    def sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3):
+        """1 when sample sphere pi of a link at (x, R) is close enough to the object to need the contact
+        law, else 0. A branch condition: its empty custom adjoint keeps the reverse pass from
+        differentiating the position and distance test of every sphere."""
         rad = m.point_radius[pi]
-        band = rad + dtype(CONTACT_CUTOFF) / m.beta  # in contact when the signed distance is below this
-        hit = int(0)
         if rad > dtype(0.0):
-            p = x + R * m.point_pos[pi]
-            if wp.length(p - xo) < m.obj_bound + band:
-                local = wp.transpose(Ro) * (p - xo)
-                decided = False
-                if wp.static(shape != SHAPE_SPHERE and shape != SHAPE_CYLINDER and shape != SHAPE_SDF):
-                    # a polytope's smooth distance lies in [max face distance, + smooth log(faces)]:
-                    # most spheres are decided by the max alone, without the exponentials
-                    hi = polytope_max(m, local)
-                    if hi >= band:
-                        decided = True
-                    elif hi + m.smooth * dtype(LOG_FACES) < band:
-                        decided = True
-                        hit = 1
-                if not decided:
-                    sd = object_sdf(m, local, saved, row, pi)
-                    if sd[0] < band:
-                        hit = 1
-        if saved.hit.shape[0] > 0:
-            saved.hit[row, pi] = hit
-        return hit
+            if wp.length(x + R * m.point_pos[pi] - xo) < m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta + rad:
+                return 1
+        return 0
 
-    @wp.func_replay(contact_test)
-    def replay_contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int):
-        return saved.hit[row, pi]
-
-    @wp.func_grad(contact_test)
-    def adj_contact_test(m: Model, x: vec3, R: mat33, pi: int, Ro: mat33, xo: vec3, saved: Saved, row: int,
-                         adj_ret: int):
+    @wp.func_grad(sphere_near)
+    def adj_sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3, adj_ret: int):
         return
 
     @wp.func
@@ -599,7 +569,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # (kept one call deep: the adjoint replays every nesting level of functions)
             for sp in range(P):
                 pi = i * P + sp
-                if contact_test(m, x, R, pi, Ro, xo, saved, ro) != 0:
+                if sphere_near(m, x, R, pi, xo) != 0:
                     p = x + R * fixed_vec3(m.point_pos, pi)
                     res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
                     if saved.contact.shape[0] > 0:
