@@ -236,7 +236,7 @@ class Simulator:
             self._pool.append(traj)
 
 
-def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor]) -> list[torch.Tensor]:
+def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor | None]) -> list[torch.Tensor | None]:
     """Scale down every gradient row of a world whose state adjoint is more than ``sim.adjoint_clip`` times
     the median over worlds (scale-free: nothing happens while the worlds' adjoints are alike).
 
@@ -248,7 +248,7 @@ def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor]) -> list[torc
     limit = sim.adjoint_clip * state.median()
     scale = torch.where(state > limit, limit / state.clamp_min(torch.finfo(state.dtype).tiny), torch.ones_like(state))
     sim.clipped_adjoints += int((scale < 1).sum())
-    return [g * scale.view(-1, *([1] * (g.dim() - 1))) for g in grads]
+    return [None if g is None else g * scale.view(-1, *([1] * (g.dim() - 1))) for g in grads]
 
 
 class SimStep(torch.autograd.Function):
@@ -278,7 +278,10 @@ class SimStep(torch.autograd.Function):
         if ctx.traj is None:
             raise RuntimeError("SimStep supports one backward pass per forward (retain_graph / double "
                                "backward is not supported): step again to differentiate again")
-        grads = ctx.traj.backward(grad_outputs)
+        needed = list(ctx.needs_input_grad[1:])
+        if ctx.sim.adjoint_clip is not None:
+            needed[:2] = [True, True]  # the clip measures each world by its state adjoint
+        grads = ctx.traj.backward(grad_outputs, needed)
         ctx.sim._return_trajectory(ctx.traj, ctx.lease)
         ctx.traj = None
         if ctx.sim.adjoint_clip is not None:

@@ -35,9 +35,11 @@ def run_blocks(fn, blocks):
     if len(blocks) == 1:
         fn(*blocks[0])
         return
-    if _POOL is None or _POOL._max_workers < len(blocks):
-        _POOL = ThreadPoolExecutor(len(blocks))
-    for future in [_POOL.submit(fn, lo, hi) for lo, hi in blocks]:
+    if _POOL is None or _POOL._max_workers < len(blocks) - 1:
+        _POOL = ThreadPoolExecutor(len(blocks) - 1)
+    futures = [_POOL.submit(fn, lo, hi) for lo, hi in blocks[1:]]
+    fn(*blocks[0])  # the calling thread takes the first block (one hand-off fewer)
+    for future in futures:
         future.result()
 
 
@@ -154,21 +156,22 @@ class Trajectory:
         return [self.q[last:].clone(), self.qd[last:].clone(), self.wrench[last:].clone(), self.cforce[last:].clone(),
                 self.pose.clone().view(-1, sim.num_bodies, 7), self.tips.clone().view(-1, sim.scene.num_fingers, 3)]
 
-    def backward(self, grad_outputs) -> list[torch.Tensor]:
+    def backward(self, grad_outputs, needed=None) -> list[torch.Tensor | None]:
         """Reverse pass: adjoints of (q, qd, wrench, contact_force, pose, tips) -> adjoints of
-        (joint_q, joint_qd, tau, q_target, kp, kd, params, object_wrench)."""
+        (joint_q, joint_qd, tau, q_target, kp, kd, params, object_wrench); ``needed`` (8 flags, default
+        all) marks the ones to return, the others come back as None."""
         if not self.save:
             raise RuntimeError("this trajectory was run without saving the reverse pass's intermediates")
         n, last = self.n, self.sim.substeps * self.n
         if self._reverse_cmds is None:
-            # adjoints of the same buffers, zeroed before each reverse pass
-            self.adj = [torch.zeros_like(t) for t in (self.q, self.qd, self.wrench, self.cforce)]
-            self.adj_controls = [torch.zeros_like(t) for t in self.controls]
-            self.adj_obs = [torch.zeros_like(self.pose), torch.zeros_like(self.tips)]
+            # adjoints of the same buffers, views of one flat buffer zeroed before each reverse pass
+            like = [self.q, self.qd, self.wrench, self.cforce, *self.controls, self.pose, self.tips]
+            self._adj_flat = torch.zeros(sum(t.numel() for t in like), dtype=self.q.dtype, device=self.q.device)
+            views = [v.view(t.shape) for v, t in zip(self._adj_flat.split([t.numel() for t in like]), like)]
+            self.adj, self.adj_controls, self.adj_obs = views[:4], views[4:10], views[10:]
             self._adj_wrapped = self._wrap(*self.adj, self.adj_controls, *self.adj_obs)
             self._reverse_cmds = {lo: self._launches(lo, hi, adjoint=True) for lo, hi in self.blocks}
-        for buf in (*self.adj, *self.adj_controls, *self.adj_obs):
-            buf.zero_()
+        self._adj_flat.zero_()
         for target, g in zip(self.adj + self.adj_obs, grad_outputs):
             if g is not None:
                 rows = target[last:] if target.shape[0] != n else target
@@ -177,4 +180,6 @@ class Trajectory:
         # a world that blew up must not poison the others' gradients (the env resets it); nan_to_num
         # also copies, so the returned gradients outlive the buffers' reuse
         grads = [self.adj[0][:n], self.adj[1][:n], *self.adj_controls]
-        return [torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0) for g in grads]
+        needed = [True] * len(grads) if needed is None else needed
+        return [torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0) if need else None
+                for g, need in zip(grads, needed)]
