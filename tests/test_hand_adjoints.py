@@ -18,8 +18,10 @@ EPS = 1e-6
 def _saved(ns, device, n, field):
     """A Saved struct whose ``field`` has one row of n slots (what the probe's replay reads back)."""
     saved = ns.Saved()
-    for name, dtype in (("finger", ns.vec7), ("contact", ns.vecC), ("sdf", ns.vec4), ("sdf_jac", ns.mat43)):
-        setattr(saved, name, wp.zeros((1, n) if name.startswith(field) else (0, 1), dtype=dtype, device=device))
+    fields = {"sdf": ("sdf", "sdf_jac"), "contact": ("contact", "law")}[field]
+    for name, dtype in (("finger", ns.vec7), ("contact", ns.vecC), ("sdf", ns.vec4), ("sdf_jac", ns.mat43),
+                        ("law", ns.mat43)):
+        setattr(saved, name, wp.zeros((1, n) if name in fields else (0, 1), dtype=dtype, device=device))
     return saved
 
 

@@ -106,6 +106,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
+        law: wp.array2d(dtype=mat43)  # contact_force: n, cp, v_rel and (softplus, its slope, slip norm)
 
     # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
     # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
@@ -347,11 +348,17 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             Jv = point_jacobian(m.jtype, base, A, O, cp)
             v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, cp - xo)
             vn = wp.dot(v_rel, n)
-            fn = m.ke * softplus(phi, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            sp = softplus(phi, m.beta)
+            fn = m.ke * sp * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
             vt = v_rel - vn * n
-            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+            ft = -m.mu * fn / den * vt
             fc = fn * n + ft
             gen = Jv * fc
+            if saved.law.shape[0] > 0:  # what the hand-written adjoint would recompute
+                slope = dtype(1.0) / (dtype(1.0) + wp.exp(-m.beta * phi))  # softplus' = sigmoid
+                saved.law[row, slot] = mat43(n[0], n[1], n[2], cp[0], cp[1], cp[2], v_rel[0], v_rel[1], v_rel[2],
+                                             sp, slope, den)
         res = vecC()
         for c in range(3):
             res[c] = fc[c]
@@ -371,7 +378,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                           base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int,
                           adj_ret: vecC):
         # Hand-written reverse of contact_force (the generated one re-ran the whole law and then
-        # differentiated it op by op): recompute the forward's intermediates, then walk them back.
+        # differentiated it op by op): the forward's intermediates (saved), walked back.
         # Model parameters (and the sphere radius) are constants: no adjoint.
         a_fc = vec3(adj_ret[0], adj_ret[1], adj_ret[2])
         a_cp = vec3(adj_ret[3], adj_ret[4], adj_ret[5])
@@ -379,18 +386,19 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         phi = rad - sd[0]
         if phi > -dtype(CONTACT_CUTOFF) / m.beta:
             n_o = vec3(sd[1], sd[2], sd[3])
-            n = Ro * n_o
-            cp = p - n * rad
+            law = saved.law[row, slot]  # saved by the taped forward
+            n = vec3(law[0, 0], law[0, 1], law[0, 2])
+            cp = vec3(law[1, 0], law[1, 1], law[1, 2])
+            v_rel = vec3(law[2, 0], law[2, 1], law[2, 2])
+            sp = law[3, 0]
+            den = law[3, 2]
             Jv = point_jacobian(m.jtype, base, A, O, cp)
             r = cp - xo
-            v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, r)
             vn = wp.dot(v_rel, n)
-            sp = softplus(phi, m.beta)
             damp_arg = dtype(1.0) - m.kd * vn
             damp = wp.max(damp_arg, dtype(0.0))
             fn = m.ke * sp * damp
             vt = v_rel - vn * n
-            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
             c = -m.mu / den
             fc = fn * n + c * fn * vt
             a_gen = vecJ()
@@ -410,7 +418,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # fn = ke softplus(phi) max(1 - kd vn, 0)
             if damp_arg > dtype(0.0):
                 a_vn = a_vn - m.kd * a_fn * m.ke * sp
-            a_phi = a_fn * m.ke * damp / (dtype(1.0) + wp.exp(-m.beta * phi))  # softplus' = sigmoid
+            a_phi = a_fn * m.ke * damp * law[3, 1]  # softplus' = sigmoid
             # vn = v_rel . n
             a_vrel = a_vrel + a_vn * n
             a_n = a_n + a_vn * v_rel
