@@ -81,7 +81,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         obj_mass: dtype
         obj_com: vec3
         obj_inertia: mat33
-        obj_armature: dtype
+        obj_axial_inertia: dtype  # hinge: inertia about the axis (constant, the body turns about it) + armature
         obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
         planes: wp.array(dtype=vec4)
         sdf: wp.array3d(dtype=dtype)  # signed distance grid for non-convex meshes
@@ -688,15 +688,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         ext_t = vec3(ext[w, 3], ext[w, 4], ext[w, 5])
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
-            cw = xo + Ro * m.obj_com
-            Iw = Ro * m.obj_inertia * wp.transpose(Ro)
-            arm = wp.cross(a, cw - xo)
-            inertia = wp.dot(a, Iw * a) + m.obj_mass * wp.dot(arm, arm) + m.obj_armature
             damp = params[w, 0]
             th_d = qd[r, o]
-            torque = wp.dot(a, t_obj + ext_t + wp.cross(cw - xo, m.obj_mass * m.gravity))
+            torque = wp.dot(a, t_obj + ext_t + wp.cross(Ro * m.obj_com, m.obj_mass * m.gravity))
             torque = torque - damp * th_d - params[w, 1] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
-            v_new = th_d + dt * torque / (inertia + dt * damp)
+            v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp)
             qd[ro, o] = v_new
             q[ro, o] = q[r, o] + dt * v_new
         else:

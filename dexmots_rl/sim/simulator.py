@@ -153,7 +153,10 @@ class Simulator:
         m.obj_base_pos, m.obj_base_rot = k.vec3(*s.object_base_pos), k.mat33(*s.object_base_rot.ravel())
         m.obj_axis, m.obj_mass = k.vec3(*s.object_axis), wdt(s.object_mass)
         m.obj_com, m.obj_inertia = k.vec3(*s.object_com), k.mat33(*s.object_inertia.ravel())
-        m.obj_armature = wdt(s.object_armature)
+        axis, com = np.asarray(s.object_axis, dtype=np.float64), np.asarray(s.object_com, dtype=np.float64)
+        arm = np.cross(axis, com)
+        m.obj_axial_inertia = wdt(axis @ np.asarray(s.object_inertia) @ axis + s.object_mass * arm @ arm
+                                  + s.object_armature)
         m.obj_bound = wdt(s.object_bound)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
