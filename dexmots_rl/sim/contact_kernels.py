@@ -1,0 +1,343 @@
+"""Contact kernels: the object's signed distance and the finger-sphere contact law, as warp functions.
+
+Built per scene structure by :func:`build_contact` from the types :func:`kernels.build_kernels` defines
+(the physics core stays the only place that knows warp). Two functions here have hand-written adjoints,
+checked against finite differences in tests/test_hand_adjoints.py: the convex polytope's smooth signed
+distance and the contact law. A taped step saves what they need (``Saved``), so their reverse pass is a
+few products instead of warp's replay of the function followed by its op-by-op adjoint.
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import types
+
+import warp as wp
+
+from .model import HINGE, SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
+
+__all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "build_contact"]
+
+LSE_CUTOFF = 12.0  # smooth-max terms this many smoothing lengths below the max are dropped
+CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
+
+
+def build_contact(t) -> types.SimpleNamespace:
+    """The contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3, vec4,
+    mat33, vecJ, matJ3, vecC, mat43, Model, Saved, J, K, shape, hinges_only)."""
+    dtype, vec3, vec4, mat33, vecJ, matJ3, vecC, mat43 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3, t.vecC, t.mat43
+    Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
+
+    @wp.func
+    def softplus(x: dtype, beta: dtype):
+        bx = beta * x
+        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def unit_j(j: int):
+        e = vecJ()
+        e[j] = dtype(1.0)
+        return e
+
+    @wp.func
+    def jac_col(jt: wp.int32, a: vec3, o: vec3, p: vec3):
+        # linear velocity of point p per unit joint velocity
+        if wp.static(HINGES_ONLY):
+            return wp.cross(a, p - o)
+        if jt == HINGE:
+            return wp.cross(a, p - o)
+        return a
+
+    @wp.func
+    def grid_sdf(m: Model, p: vec3):
+        """Trilinear signed distance and its normalised gradient from the grid; outside the grid the
+        distance to the grid box is added (the grid is padded, so this only matters far away)."""
+        g = (p - m.sdf_origin) / m.sdf_cell
+        hi = vec3(dtype(m.sdf.shape[0] - 1), dtype(m.sdf.shape[1] - 1), dtype(m.sdf.shape[2] - 1))
+        gc = vec3(wp.clamp(g[0], dtype(0.0), hi[0]), wp.clamp(g[1], dtype(0.0), hi[1]), wp.clamp(g[2], dtype(0.0), hi[2]))
+        i = wp.min(int(gc[0]), m.sdf.shape[0] - 2)
+        j = wp.min(int(gc[1]), m.sdf.shape[1] - 2)
+        k = wp.min(int(gc[2]), m.sdf.shape[2] - 2)
+        fx = gc[0] - dtype(i)
+        fy = gc[1] - dtype(j)
+        fz = gc[2] - dtype(k)
+        c000 = m.sdf[i, j, k]
+        c100 = m.sdf[i + 1, j, k]
+        c010 = m.sdf[i, j + 1, k]
+        c110 = m.sdf[i + 1, j + 1, k]
+        c001 = m.sdf[i, j, k + 1]
+        c101 = m.sdf[i + 1, j, k + 1]
+        c011 = m.sdf[i, j + 1, k + 1]
+        c111 = m.sdf[i + 1, j + 1, k + 1]
+        one = dtype(1.0)
+        c00 = c000 * (one - fx) + c100 * fx
+        c10 = c010 * (one - fx) + c110 * fx
+        c01 = c001 * (one - fx) + c101 * fx
+        c11 = c011 * (one - fx) + c111 * fx
+        c0 = c00 * (one - fy) + c10 * fy
+        c1 = c01 * (one - fy) + c11 * fy
+        d = c0 * (one - fz) + c1 * fz
+        gx = ((c100 - c000) * (one - fy) + (c110 - c010) * fy) * (one - fz) + ((c101 - c001) * (one - fy) + (c111 - c011) * fy) * fz
+        gy = (c10 - c00) * (one - fz) + (c11 - c01) * fz
+        gz = c1 - c0
+        n = vec3(gx, gy, gz) + (g - gc)  # outside the grid: point away from it
+        return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
+
+    @wp.func
+    def polytope_max(m: Model, p: vec3):
+        hi = dtype(-1e9)
+        for k in range(K):
+            pl = m.planes[k]
+            hi = wp.max(hi, pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3])
+        return hi
+
+    @wp.func
+    def face_weight(m: Model, p: vec3, k: int, hi: dtype):
+        """exp((g_k - hi) / smooth) of face k, 0 for faces far below the max (weight < e^-LSE_CUTOFF)."""
+        pl = m.planes[k]
+        gap = pl[0] * p[0] + pl[1] * p[1] + pl[2] * p[2] - pl[3] - hi
+        if gap > dtype(-LSE_CUTOFF) * m.smooth:
+            return wp.exp(gap / m.smooth)
+        return dtype(0.0)
+
+    @wp.func
+    def polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        """Convex polytope: log-sum-exp smooth max over the face planes g_k = n_k . p - d_k: distance
+        hi + smooth log(sum_k w_k) and normal u / |u|, u = sum_k w_k n_k, w_k = face_weight.
+
+        A taped step also saves the result's Jacobian for the hand-written adjoint: d = smooth log
+        sum_k exp(g_k / smooth) gives dd/dp = u / sum_k w_k; the normal does not change with the common
+        factor exp(-hi / smooth), so dn/dp = (I - n n^T) S / (smooth |u|) with S = sum_k w_k n_k n_k^T."""
+        keep = saved.sdf_jac.shape[0] > 0
+        hi = polytope_max(m, p)
+        total = dtype(0.0)
+        u = vec3()
+        S = mat33()
+        for k in range(K):
+            w = face_weight(m, p, k, hi)
+            nk = vec3(m.planes[k][0], m.planes[k][1], m.planes[k][2])
+            total = total + w
+            u = u + w * nk
+            if keep:
+                S = S + w * wp.outer(nk, nk)
+        n = wp.normalize(u)
+        if keep:
+            length = wp.length(u)
+            dn = mat33()
+            if length > dtype(0.0):
+                dn = (wp.identity(n=3, dtype=dtype) - wp.outer(n, n)) * S / (m.smooth * length)
+            g = u / total
+            saved.sdf_jac[row, slot] = mat43(g[0], g[1], g[2], dn[0, 0], dn[0, 1], dn[0, 2],
+                                             dn[1, 0], dn[1, 1], dn[1, 2], dn[2, 0], dn[2, 1], dn[2, 2])
+        return vec4(hi + m.smooth * wp.log(total), n[0], n[1], n[2])
+
+    @wp.func_replay(polytope_sdf)
+    def replay_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        return saved.sdf[row, slot]
+
+    @wp.func_grad(polytope_sdf)
+    def adj_polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int, adj_ret: vec4):
+        # the Jacobian saved by the taped forward: no replay of the face loops, no per-face adjoints
+        wp.adjoint[p] += wp.transpose(saved.sdf_jac[row, slot]) * adj_ret
+
+    @wp.func
+    def object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        """Signed distance (smoothed at edges) and outward unit normal (object frame), packed as
+        (d, n). ``saved``/``row``/``slot``: where the caller saves the result for the reverse pass."""
+        if wp.static(shape == SHAPE_SPHERE):
+            d = wp.length(p)
+            n = p / wp.max(d, dtype(1e-9))
+            return vec4(d - m.shape_size[0], n[0], n[1], n[2])
+        if wp.static(shape == SHAPE_CYLINDER):
+            rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1e-12))
+            s_r = rho - m.shape_size[0]
+            s_z = wp.abs(p[2]) - m.shape_size[1]
+            hi = wp.max(s_r, s_z)
+            w_r = wp.exp((s_r - hi) / m.smooth)
+            w_z = wp.exp((s_z - hi) / m.smooth)
+            n = wp.normalize(w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2])))
+            return vec4(hi + m.smooth * wp.log(w_r + w_z), n[0], n[1], n[2])
+        if wp.static(shape == SHAPE_SDF):
+            d, n = grid_sdf(m, p)
+            return vec4(d, n[0], n[1], n[2])
+        return polytope_sdf(m, p, saved, row, slot)
+
+    # Replays: warp's adjoint of a function first re-runs the function's forward to get its
+    # intermediates, and the adjoint of a caller re-runs its callees too, so a function nested d deep
+    # ran d + 1 times in the reverse pass. A taped forward saves each call's result; the replays here
+    # and in kernels.py load it, so every function body runs once more in reverse (in its own adjoint).
+    @wp.func_replay(object_sdf)
+    def replay_object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
+        return saved.sdf[row, slot]
+
+    @wp.func
+    def point_jacobian(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3, O: matJ3, p: vec3):
+        """Row j: velocity of point p per unit velocity of joint j (zero rows for joints not yet set)."""
+        Jv = matJ3()
+        for j in range(J):
+            v = jac_col(jtype[base + j], A[j], O[j], p)
+            for c in range(3):
+                Jv[j, c] = v[c]
+        return Jv
+
+    @wp.func
+    def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
+        (object frame) are ``sd``; packed result as :func:`point_contact`'s."""
+        phi = rad - sd[0]
+        fc = vec3()
+        fn = dtype(0.0)
+        cp = p
+        gen = vecJ()
+        if phi > -dtype(CONTACT_CUTOFF) / m.beta:
+            n = Ro * vec3(sd[1], sd[2], sd[3])
+            cp = p - n * rad
+            Jv = point_jacobian(m.jtype, base, A, O, cp)
+            v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, cp - xo)
+            vn = wp.dot(v_rel, n)
+            sp = softplus(phi, m.beta)
+            fn = m.ke * sp * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            vt = v_rel - vn * n
+            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+            ft = -m.mu * fn / den * vt
+            fc = fn * n + ft
+            gen = Jv * fc
+            if saved.law.shape[0] > 0:  # what the hand-written adjoint would recompute
+                slope = dtype(1.0) / (dtype(1.0) + wp.exp(-m.beta * phi))  # softplus' = sigmoid
+                saved.law[row, slot] = mat43(n[0], n[1], n[2], cp[0], cp[1], cp[2], v_rel[0], v_rel[1], v_rel[2],
+                                             sp, slope, den)
+        res = vecC()
+        for c in range(3):
+            res[c] = fc[c]
+            res[3 + c] = cp[c]
+        res[6] = fn
+        for j in range(J):
+            res[7 + j] = gen[j]
+        return res
+
+    @wp.func_replay(contact_force)
+    def replay_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
+                             base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        return saved.contact[row, slot]
+
+    @wp.func_grad(contact_force)
+    def adj_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
+                          base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int,
+                          adj_ret: vecC):
+        # Hand-written reverse of contact_force (the generated one re-ran the whole law and then
+        # differentiated it op by op): the forward's intermediates (saved), walked back.
+        # Model parameters (and the sphere radius) are constants: no adjoint.
+        a_fc = vec3(adj_ret[0], adj_ret[1], adj_ret[2])
+        a_cp = vec3(adj_ret[3], adj_ret[4], adj_ret[5])
+        a_fn = adj_ret[6]
+        phi = rad - sd[0]
+        if phi > -dtype(CONTACT_CUTOFF) / m.beta:
+            n_o = vec3(sd[1], sd[2], sd[3])
+            law = saved.law[row, slot]  # saved by the taped forward
+            n = vec3(law[0, 0], law[0, 1], law[0, 2])
+            cp = vec3(law[1, 0], law[1, 1], law[1, 2])
+            v_rel = vec3(law[2, 0], law[2, 1], law[2, 2])
+            sp = law[3, 0]
+            den = law[3, 2]
+            Jv = point_jacobian(m.jtype, base, A, O, cp)
+            r = cp - xo
+            vn = wp.dot(v_rel, n)
+            damp_arg = dtype(1.0) - m.kd * vn
+            damp = wp.max(damp_arg, dtype(0.0))
+            fn = m.ke * sp * damp
+            vt = v_rel - vn * n
+            c = -m.mu / den
+            fc = fn * n + c * fn * vt
+            a_gen = vecJ()
+            for j in range(J):
+                a_gen[j] = adj_ret[7 + j]
+            # gen = Jv fc
+            a_fc = a_fc + wp.transpose(Jv) * a_gen
+            a_Jv = wp.outer(a_gen, fc)
+            # fc = fn n + ft, ft = c(vt) fn vt with c = -mu / sqrt(|vt|^2 + v_slip^2)
+            a_fn = a_fn + wp.dot(a_fc, n) + c * wp.dot(vt, a_fc)
+            a_n = fn * a_fc
+            a_vt = c * fn * a_fc + (m.mu * fn * wp.dot(vt, a_fc) / (den * den * den)) * vt
+            # vt = v_rel - vn n
+            a_vrel = a_vt
+            a_vn = -wp.dot(a_vt, n)
+            a_n = a_n - vn * a_vt
+            # fn = ke softplus(phi) max(1 - kd vn, 0)
+            if damp_arg > dtype(0.0):
+                a_vn = a_vn - m.kd * a_fn * m.ke * sp
+            a_phi = a_fn * m.ke * damp * law[3, 1]  # softplus' = sigmoid
+            # vn = v_rel . n
+            a_vrel = a_vrel + a_vn * n
+            a_n = a_n + a_vn * v_rel
+            # v_rel = Jv^T qdf - vo - wo x r, r = cp - xo
+            wp.adjoint[qdf] += Jv * a_vrel
+            a_Jv = a_Jv + wp.outer(qdf, a_vrel)
+            wp.adjoint[vo] += -a_vrel
+            wp.adjoint[wo] += wp.cross(a_vrel, r)
+            a_r = wp.cross(wo, a_vrel)
+            a_cp = a_cp + a_r
+            wp.adjoint[xo] += -a_r
+            # Jv row j: A_j x (cp - O_j) for a hinge, A_j for a slider
+            a_A = matJ3()
+            a_O = matJ3()
+            for j in range(J):
+                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
+                is_hinge = True
+                if wp.static(not HINGES_ONLY):
+                    is_hinge = m.jtype[base + j] == HINGE
+                if is_hinge:
+                    a_axis = wp.cross(vec3(cp[0] - O[j, 0], cp[1] - O[j, 1], cp[2] - O[j, 2]), a_row)
+                    a_point = wp.cross(a_row, axis)
+                    a_cp = a_cp + a_point
+                    a_O = a_O - wp.outer(unit_j(j), a_point)
+                else:
+                    a_axis = a_row
+                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            wp.adjoint[A] += a_A
+            wp.adjoint[O] += a_O
+            # cp = p - rad n, n = Ro n_o, phi = rad - d
+            wp.adjoint[p] += a_cp
+            a_n = a_n - rad * a_cp
+            wp.adjoint[Ro] += wp.outer(a_n, n_o)
+            a_no = wp.transpose(Ro) * a_n
+            wp.adjoint[sd] += vec4(-a_phi, a_no[0], a_no[1], a_no[2])
+        else:
+            wp.adjoint[p] += a_cp  # out of the band: the result is (0, p, 0, 0)
+
+    @wp.func
+    def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
+
+        Returns, packed in one vector: the force on the finger, the contact point, the normal force
+        magnitude and the generalized force on the finger's joints.
+        """
+        sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
+        if saved.sdf.shape[0] > 0:
+            saved.sdf[row, slot] = sd
+        return contact_force(m, p, rad, sd, Ro, xo, vo, wo, base, A, O, qdf, saved, row, slot)
+
+    @wp.func_replay(point_contact)
+    def replay_point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
+                             A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+        return saved.contact[row, slot]
+
+    @wp.func
+    def sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3):
+        """1 when sample sphere pi of a link at (x, R) is close enough to the object to need the contact
+        law, else 0. A branch condition: its empty custom adjoint keeps the reverse pass from
+        differentiating the position and distance test of every sphere."""
+        rad = m.point_radius[pi]
+        if rad > dtype(0.0):
+            if wp.length(x + R * m.point_pos[pi] - xo) < m.obj_bound + dtype(CONTACT_CUTOFF) / m.beta + rad:
+                return 1
+        return 0
+
+    @wp.func_grad(sphere_near)
+    def adj_sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3, adj_ret: int):
+        return
+
+    return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,
+                                 object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
+                                 sphere_near=sphere_near)
