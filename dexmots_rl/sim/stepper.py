@@ -52,9 +52,13 @@ def prepared(cmd):
     the way warp 1.19's ``invoke`` does, and call the compiled entry point directly. Anything else
     (CUDA, tiled CPU launches) keeps ``cmd.launch``.
     """
-    if not cmd.device.is_cpu or cmd.block_dim > 1:
+    try:  # warp internals (pinned to 1.19): anything unexpected falls back to the public call
+        if not cmd.device.is_cpu or cmd.block_dim > 1:
+            return cmd.launch
+        params, labels = cmd.params, [arg.label for arg in cmd.kernel.adj.args]
+        entry = cmd.hooks.backward if cmd.adjoint else cmd.hooks.forward
+    except AttributeError:
         return cmd.launch
-    params, labels = cmd.params, [arg.label for arg in cmd.kernel.adj.args]
 
     def pack(offset):
         fields = [(name, type(params[offset + i])) for i, name in enumerate(labels)]
@@ -64,7 +68,6 @@ def prepared(cmd):
         return struct
 
     structs = [params[0], pack(1)] + ([pack(1 + len(labels))] if cmd.adjoint else [])
-    entry = cmd.hooks.backward if cmd.adjoint else cmd.hooks.forward
     refs = [ctypes.byref(x) for x in structs]
 
     def run():
