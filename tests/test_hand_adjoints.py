@@ -1,6 +1,7 @@
-"""Hand-written adjoints (``adj_polytope_sdf``, ``adj_contact_force`` in kernels.py) against central
-finite differences, in float64: the knob's signed distance at face, edge and corner points, and the
-contact law with respect to every differentiable input.
+"""Hand-written adjoints (``adj_polytope_sdf`` and ``adj_contact_force`` in contact_kernels.py,
+``adj_link_inertia`` in kernels.py) against central finite differences, in float64: the knob's signed
+distance at face, edge and corner points, the contact law and a link's mass-matrix and bias-force
+contribution with respect to every differentiable input.
 
 No ``from __future__ import annotations`` here: warp reads the probe kernels' annotations.
 """
@@ -18,9 +19,9 @@ EPS = 1e-6
 def _saved(ns, device, n, field):
     """A Saved struct whose ``field`` has one row of n slots (what the probe's replay reads back)."""
     saved = ns.Saved()
-    fields = {"sdf": ("sdf", "sdf_jac"), "contact": ("contact", "law")}[field]
+    fields = {"sdf": ("sdf", "sdf_jac"), "contact": ("contact", "law"), "inertia": ("inertia",)}[field]
     for name, dtype in (("finger", ns.vec7), ("contact", ns.vecC), ("sdf", ns.vec4), ("sdf_jac", ns.mat43),
-                        ("law", ns.mat43)):
+                        ("law", ns.mat43), ("inertia", ns.matJJ1)):
         setattr(saved, name, wp.zeros((1, n) if name in fields else (0, 1), dtype=dtype, device=device))
     return saved
 
@@ -140,3 +141,43 @@ def test_contact_force_adjoint_matches_finite_differences(claw_scene):
     for name in inputs:
         assert np.abs(fd[name]).max() > 0, name
         np.testing.assert_allclose(ad[name], fd[name], rtol=1e-5, atol=1e-6 * np.abs(fd[name]).max(), err_msg=name)
+
+
+def _inertia_kernel(ns, link: int):
+    @wp.kernel(module="unique")
+    def probe(m: ns.Model, saved: ns.Saved, R: wp.array(dtype=ns.mat33), x: wp.array(dtype=ns.vec3),
+              acc: wp.array(dtype=ns.vec3), al: wp.array(dtype=ns.vec3), om: wp.array(dtype=ns.vec3),
+              A: wp.array(dtype=ns.matJ3), O: wp.array(dtype=ns.matJ3), weight: wp.array(dtype=ns.matJJ1),
+              out: wp.array(dtype=wp.float64)):
+        i = wp.tid()
+        mb = ns.link_inertia(m, link, 0, R[i], x[i], acc[i], al[i], om[i], A[i], O[i], saved, 0)
+        saved.inertia[0, link] = mb
+        out[i] = wp.ddot(mb, weight[i])
+
+    return probe
+
+
+def test_link_inertia_adjoint_matches_finite_differences(claw_scene):
+    """A link's [mass matrix | bias force] block with respect to its frame, the chain's velocity terms and
+    the finger's joint axes and origins (one world per probe: the block is saved per link)."""
+    sim = Simulator(claw_scene, num_worlds=1, dtype=torch.float64)
+    ns, rng, J = sim.kernels, np.random.default_rng(2), sim.scene.joints_per_finger
+    axes = rng.normal(size=(1, J, 3))
+    inputs = {
+        "R": np.linalg.qr(rng.normal(size=(3, 3)))[0][None],
+        "x": rng.uniform(-0.1, 0.1, (1, 3)),
+        "acc": rng.uniform(-10, 10, (1, 3)),
+        "al": rng.uniform(-5, 5, (1, 3)),
+        "om": rng.uniform(-3, 3, (1, 3)),
+        "A": axes / np.linalg.norm(axes, axis=2, keepdims=True),
+        "O": rng.uniform(-0.1, 0.1, (1, J, 3)),
+    }
+    types = {"R": ns.mat33, "x": ns.vec3, "acc": ns.vec3, "al": ns.vec3, "om": ns.vec3, "A": ns.matJ3, "O": ns.matJ3}
+    weight = wp.array(rng.uniform(-1, 1, (1, J, J + 1)), dtype=ns.matJJ1, device=sim.device)
+    for link in range(J):
+        probe = _inertia_kernel(ns, link)
+        ad, fd = _ad_and_fd(sim, probe, inputs, types, weight, _saved(ns, sim.device, J, "inertia"))
+        for name in inputs:
+            assert np.abs(fd[name]).max() > 0, (link, name)
+            np.testing.assert_allclose(ad[name], fd[name], rtol=1e-5, atol=1e-7 * np.abs(fd[name]).max(),
+                                       err_msg=f"link {link}: {name}")

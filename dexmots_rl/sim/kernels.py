@@ -59,6 +59,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     vec7 = wp.types.vector(7, dtype)  # a finger's saved result: force, torque on the object, normal force
     vecC = wp.types.vector(7 + J, dtype)  # a contact's saved result: force, point, normal force, joint forces
     mat43 = wp.types.matrix((4, 3), dtype)  # Jacobian of (signed distance, normal) w.r.t. the query point
+    matJJ1 = wp.types.matrix((J, J + 1), dtype)  # a link's mass-matrix block and bias forces, side by side
 
     @wp.struct
     class Model:
@@ -113,6 +114,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
         law: wp.array2d(dtype=mat43)  # contact_force: n, cp, v_rel and (softplus, its slope, slip norm)
+        inertia: wp.array2d(dtype=matJJ1)  # link_inertia: the link's [M | bias] contribution
 
     # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
     # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
@@ -193,6 +195,98 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return Jw
 
     @wp.func
+    def vecJ_row(Mb: matJJ1, j: int):
+        row = vecJ()
+        for c in range(J):
+            row[c] = Mb[j, c]
+        return row
+
+    @wp.func
+    def link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3, A: matJ3,
+                     O: matJ3, saved: Saved, row: int):
+        """Link i's contribution to its finger's joint-space mass matrix and bias forces, [M | bias]:
+        m Jv Jv^T + Jw Iw Jw^T and Jv m a_c + Jw (Iw al + om x Iw om), with Jv the Jacobian of its centre
+        of mass cw = x + R c, Iw = R I R^T and a_c the centre's velocity-product acceleration."""
+        rc = R * fixed_vec3(m.com, i)
+        Iw = R * fixed_mat33(m.inertia, i) * wp.transpose(R)
+        a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
+        Jv = point_jacobian(m.jtype, base, A, O, x + rc)
+        Jw = angular_jacobian(m.jtype, base, A)
+        mass = fixed(m.mass, i)
+        Mc = mass * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
+        bc = Jv * (mass * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
+        out = matJJ1()
+        for j in range(J):
+            out[j, J] = bc[j]
+            for c in range(J):
+                out[j, c] = Mc[j, c]
+        return out
+
+    @wp.func_replay(link_inertia)
+    def replay_link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3,
+                            A: matJ3, O: matJ3, saved: Saved, row: int):
+        return saved.inertia[row, i]
+
+    if HINGES_ONLY:  # the hand-written adjoint below assumes revolute joints (Jw = A); sliders keep warp's
+
+        @wp.func_grad(link_inertia)
+        def adj_link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3,
+                             A: matJ3, O: matJ3, saved: Saved, row: int, adj_ret: matJJ1):
+            # forward intermediates (recomputed: cheaper than a replay of warp's generated adjoint)
+            c, I, mass = fixed_vec3(m.com, i), fixed_mat33(m.inertia, i), fixed(m.mass, i)
+            rc = R * c
+            cw = x + rc
+            Iw = R * I * wp.transpose(R)
+            w = wp.cross(om, rc)
+            a_c = acc + wp.cross(al, rc) + wp.cross(om, w)
+            Jv = point_jacobian(m.jtype, base, A, O, cw)
+            z = Iw * om
+            h = Iw * al + wp.cross(om, z)
+            a_M = matJ()  # adjoint of the mass-matrix block
+            g = vecJ()  # adjoint of the bias block
+            for j in range(J):
+                g[j] = adj_ret[j, J]
+                for k in range(J):
+                    a_M[j, k] = adj_ret[j, k]
+            G = a_M + wp.transpose(a_M)
+            # Mc = m Jv Jv^T + A Iw A^T, bc = Jv m a_c + A h
+            a_Jv = mass * (G * Jv) + wp.outer(g, mass * a_c)
+            a_A = G * A * Iw + wp.outer(g, h)
+            a_ac = mass * (wp.transpose(Jv) * g)
+            y = wp.transpose(A) * g  # adjoint of h
+            a_Iw = wp.transpose(A) * a_M * A
+            # h = Iw al + om x z, z = Iw om
+            a_z = wp.cross(y, om)
+            a_om = wp.cross(z, y) + Iw * a_z
+            a_al = Iw * y
+            a_Iw = a_Iw + wp.outer(y, al) + wp.outer(a_z, om)
+            # a_c = acc + al x rc + om x w, w = om x rc
+            a_w = wp.cross(a_ac, om)
+            a_om = a_om + wp.cross(w, a_ac) + wp.cross(rc, a_w)
+            a_al = a_al + wp.cross(rc, a_ac)
+            a_rc = wp.cross(a_ac, al) + wp.cross(a_w, om)
+            # Jv row j = a_j x (cw - O_j)
+            a_cw = vec3()
+            a_O = matJ3()
+            for j in range(J):
+                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
+                a_axis = wp.cross(vec3(cw[0] - O[j, 0], cw[1] - O[j, 1], cw[2] - O[j, 2]), a_row)
+                a_point = wp.cross(a_row, axis)
+                a_cw = a_cw + a_point
+                a_O = a_O - wp.outer(unit_j(j), a_point)
+                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            # cw = x + rc, rc = R c, Iw = R I R^T
+            a_rc = a_rc + a_cw
+            wp.adjoint[x] += a_cw
+            wp.adjoint[R] += wp.outer(a_rc, c) + (a_Iw + wp.transpose(a_Iw)) * R * I
+            wp.adjoint[acc] += a_ac
+            wp.adjoint[al] += a_al
+            wp.adjoint[om] += a_om
+            wp.adjoint[A] += a_A
+            wp.adjoint[O] += a_O
+
+    @wp.func
     def finger_step(
         m: Model,
         f: int,
@@ -266,14 +360,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             O = O + wp.outer(ek, x)
             A = A + wp.outer(ek, a)
             # link inertia: mass matrix and bias-force contributions through the Jacobian
-            cw = x + R * fixed_vec3(m.com, i)
-            Iw = R * fixed_mat33(m.inertia, i) * wp.transpose(R)
-            rc = cw - x
-            a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
-            Jv = point_jacobian(m.jtype, f * J, A, O, cw)
-            Jw = angular_jacobian(m.jtype, f * J, A)
-            M = M + fixed(m.mass, i) * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
-            bias = bias + Jv * (fixed(m.mass, i) * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
+            Mb = link_inertia(m, i, f * J, R, x, acc, al, om, A, O, saved, ro)
+            if saved.inertia.shape[0] > 0:
+                saved.inertia[ro, i] = Mb
+            for j in range(J):
+                bias = bias + unit_j(j) * Mb[j, J]
+                M = M + wp.outer(unit_j(j), vecJ_row(Mb, j))
             # contact of this link's sample spheres: a distance test each, the work only near the object
             for sp in range(P):
                 pi = i * P + sp
@@ -464,4 +556,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns.Model, ns.Saved, ns.substep, ns.observe = Model, Saved, substep, observe
     ns.object_sdf, ns.contact_force = contact.object_sdf, contact.contact_force  # for probe kernels (tests)
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
+    ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
     return ns

@@ -100,6 +100,7 @@ class Trajectory:
         self.saved.sdf = wp.empty((saved_rows, points), dtype=k.vec4, device=sim.device)
         self.saved.sdf_jac = wp.empty((saved_rows, points), dtype=k.mat43, device=sim.device)
         self.saved.law = wp.empty((saved_rows, points), dtype=k.mat43, device=sim.device)
+        self.saved.inertia = wp.empty((saved_rows, scene.num_hand_dofs), dtype=k.matJJ1, device=sim.device)
         # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
