@@ -1,0 +1,162 @@
+"""Kernel functions for a finger chain's links: model-constant loads without adjoint, the angular
+Jacobian, and a link's mass-matrix and bias-force contribution with its hand-written adjoint.
+
+Built per scene structure by :func:`build_chain` from the types :func:`kernels.build_kernels` defines.
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import types
+
+import warp as wp
+
+from .model import HINGE
+
+__all__ = ["build_chain"]
+
+
+def build_chain(t) -> types.SimpleNamespace:
+    """The link functions for the types and scene constants in ``t`` (attributes: dtype, vec3, mat33,
+    vecJ, matJ, matJ3, matJJ1, Model, Saved, J, hinges_only, unit_j, point_jacobian)."""
+    dtype, vec3, mat33, vecJ, matJ, matJ3, matJJ1 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ, t.matJ3, t.matJJ1
+    Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
+    unit_j, point_jacobian = t.unit_j, t.point_jacobian
+
+    # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
+    # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
+    # work of a product with a constant matrix), where a plain read keeps them alive for a runtime check.
+    @wp.func
+    def fixed_vec3(a: wp.array(dtype=vec3), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_vec3)
+    def adj_fixed_vec3(a: wp.array(dtype=vec3), i: int, adj_ret: vec3):
+        return
+
+    @wp.func
+    def fixed_mat33(a: wp.array(dtype=mat33), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_mat33)
+    def adj_fixed_mat33(a: wp.array(dtype=mat33), i: int, adj_ret: mat33):
+        return
+
+    @wp.func
+    def fixed(a: wp.array(dtype=dtype), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed)
+    def adj_fixed(a: wp.array(dtype=dtype), i: int, adj_ret: dtype):
+        return
+
+    @wp.func
+    def jac_ang(jt: wp.int32, a: vec3):
+        if jt == HINGE:
+            return a
+        return vec3(dtype(0.0), dtype(0.0), dtype(0.0))
+
+    @wp.func
+    def angular_jacobian(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3):
+        if wp.static(HINGES_ONLY):
+            return A  # a hinge turns its link about its axis; A's rows of later joints are still zero
+        Jw = matJ3()
+        for j in range(J):
+            v = jac_ang(jtype[base + j], A[j])
+            for c in range(3):
+                Jw[j, c] = v[c]
+        return Jw
+
+    @wp.func
+    def vecJ_row(Mb: matJJ1, j: int):
+        row = vecJ()
+        for c in range(J):
+            row[c] = Mb[j, c]
+        return row
+
+    @wp.func
+    def link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3, A: matJ3,
+                     O: matJ3, saved: Saved, row: int):
+        """Link i's contribution to its finger's joint-space mass matrix and bias forces, [M | bias]:
+        m Jv Jv^T + Jw Iw Jw^T and Jv m a_c + Jw (Iw al + om x Iw om), with Jv the Jacobian of its centre
+        of mass cw = x + R c, Iw = R I R^T and a_c the centre's velocity-product acceleration."""
+        rc = R * fixed_vec3(m.com, i)
+        Iw = R * fixed_mat33(m.inertia, i) * wp.transpose(R)
+        a_c = acc + wp.cross(al, rc) + wp.cross(om, wp.cross(om, rc))
+        Jv = point_jacobian(m.jtype, base, A, O, x + rc)
+        Jw = angular_jacobian(m.jtype, base, A)
+        mass = fixed(m.mass, i)
+        Mc = mass * Jv * wp.transpose(Jv) + Jw * Iw * wp.transpose(Jw)
+        bc = Jv * (mass * a_c) + Jw * (Iw * al + wp.cross(om, Iw * om))
+        out = matJJ1()
+        for j in range(J):
+            out[j, J] = bc[j]
+            for c in range(J):
+                out[j, c] = Mc[j, c]
+        return out
+
+    @wp.func_replay(link_inertia)
+    def replay_link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3,
+                            A: matJ3, O: matJ3, saved: Saved, row: int):
+        return saved.inertia[row, i]
+
+    if HINGES_ONLY:  # the hand-written adjoint below assumes revolute joints (Jw = A); sliders keep warp's
+
+        @wp.func_grad(link_inertia)
+        def adj_link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3,
+                             A: matJ3, O: matJ3, saved: Saved, row: int, adj_ret: matJJ1):
+            # forward intermediates (recomputed: cheaper than a replay of warp's generated adjoint)
+            c, I, mass = fixed_vec3(m.com, i), fixed_mat33(m.inertia, i), fixed(m.mass, i)
+            rc = R * c
+            cw = x + rc
+            Iw = R * I * wp.transpose(R)
+            w = wp.cross(om, rc)
+            a_c = acc + wp.cross(al, rc) + wp.cross(om, w)
+            Jv = point_jacobian(m.jtype, base, A, O, cw)
+            z = Iw * om
+            h = Iw * al + wp.cross(om, z)
+            a_M = matJ()  # adjoint of the mass-matrix block
+            g = vecJ()  # adjoint of the bias block
+            for j in range(J):
+                g[j] = adj_ret[j, J]
+                for k in range(J):
+                    a_M[j, k] = adj_ret[j, k]
+            G = a_M + wp.transpose(a_M)
+            # Mc = m Jv Jv^T + A Iw A^T, bc = Jv m a_c + A h
+            a_Jv = mass * (G * Jv) + wp.outer(g, mass * a_c)
+            a_A = G * A * Iw + wp.outer(g, h)
+            a_ac = mass * (wp.transpose(Jv) * g)
+            y = wp.transpose(A) * g  # adjoint of h
+            a_Iw = wp.transpose(A) * a_M * A
+            # h = Iw al + om x z, z = Iw om
+            a_z = wp.cross(y, om)
+            a_om = wp.cross(z, y) + Iw * a_z
+            a_al = Iw * y
+            a_Iw = a_Iw + wp.outer(y, al) + wp.outer(a_z, om)
+            # a_c = acc + al x rc + om x w, w = om x rc
+            a_w = wp.cross(a_ac, om)
+            a_om = a_om + wp.cross(w, a_ac) + wp.cross(rc, a_w)
+            a_al = a_al + wp.cross(rc, a_ac)
+            a_rc = wp.cross(a_ac, al) + wp.cross(a_w, om)
+            # Jv row j = a_j x (cw - O_j)
+            a_cw = vec3()
+            a_O = matJ3()
+            for j in range(J):
+                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
+                a_axis = wp.cross(vec3(cw[0] - O[j, 0], cw[1] - O[j, 1], cw[2] - O[j, 2]), a_row)
+                a_point = wp.cross(a_row, axis)
+                a_cw = a_cw + a_point
+                a_O = a_O - wp.outer(unit_j(j), a_point)
+                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            # cw = x + rc, rc = R c, Iw = R I R^T
+            a_rc = a_rc + a_cw
+            wp.adjoint[x] += a_cw
+            wp.adjoint[R] += wp.outer(a_rc, c) + (a_Iw + wp.transpose(a_Iw)) * R * I
+            wp.adjoint[acc] += a_ac
+            wp.adjoint[al] += a_al
+            wp.adjoint[om] += a_om
+            wp.adjoint[A] += a_A
+            wp.adjoint[O] += a_O
+
+    return types.SimpleNamespace(fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, fixed=fixed,
+                                 angular_jacobian=angular_jacobian, vecJ_row=vecJ_row, link_inertia=link_inertia)
