@@ -225,10 +225,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             o_prev = x
             # O and A were already read for earlier links: overwriting their components would break
             # the adjoint, so add the new row as a whole matrix instead
-            ek = vecJ()
-            ek[k] = dtype(1.0)
-            O = O + wp.outer(ek, x)
-            A = A + wp.outer(ek, a)
+            O = O + wp.outer(unit_j(k), x)
+            A = A + wp.outer(unit_j(k), a)
             # link inertia: mass matrix and bias-force contributions through the Jacobian
             Mb = link_inertia(m, i, f * J, R, x, acc, al, om, A, O, saved, ro)
             if saved.inertia.shape[0] > 0:
