@@ -194,7 +194,9 @@ class Simulator:
             raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
         ext = control.object_wrench
         if ext is None:
-            ext = self._zeros(n, 6)
+            if getattr(self, "_no_wrench", None) is None:
+                self._no_wrench = self._zeros(n, 6)  # read only: SimStep copies its inputs
+            ext = self._no_wrench
         return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd,
                                         params, ext))
 
@@ -263,7 +265,7 @@ class SimStep(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, sim: Simulator, *inputs):
-        inputs = [t.detach().to(sim.dtype) for t in inputs]
+        inputs = [t.detach() if t.dtype == sim.dtype else t.detach().to(sim.dtype) for t in inputs]
         ctx.sim = sim
         if not any(ctx.needs_input_grad[1:]):
             ctx.traj = None
