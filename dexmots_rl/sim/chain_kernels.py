@@ -17,10 +17,10 @@ __all__ = ["build_chain"]
 
 def build_chain(t) -> types.SimpleNamespace:
     """The link functions for the types and scene constants in ``t`` (attributes: dtype, vec3, mat33,
-    vecJ, matJ, matJ3, matJJ1, Model, Saved, J, hinges_only, unit_j, point_jacobian)."""
+    vecJ, matJ, matJ3, matJJ1, Model, Saved, J, hinges_only, point_jacobian, point_jacobian_vjp)."""
     dtype, vec3, mat33, vecJ, matJ, matJ3, matJJ1 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ, t.matJ3, t.matJJ1
     Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
-    unit_j, point_jacobian = t.unit_j, t.point_jacobian
+    point_jacobian, point_jacobian_vjp = t.point_jacobian, t.point_jacobian_vjp
 
     # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
     # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
@@ -137,17 +137,8 @@ def build_chain(t) -> types.SimpleNamespace:
             a_om = a_om + wp.cross(w, a_ac) + wp.cross(rc, a_w)
             a_al = a_al + wp.cross(rc, a_ac)
             a_rc = wp.cross(a_ac, al) + wp.cross(a_w, om)
-            # Jv row j = a_j x (cw - O_j)
-            a_cw = vec3()
-            a_O = matJ3()
-            for j in range(J):
-                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
-                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
-                a_axis = wp.cross(vec3(cw[0] - O[j, 0], cw[1] - O[j, 1], cw[2] - O[j, 2]), a_row)
-                a_point = wp.cross(a_row, axis)
-                a_cw = a_cw + a_point
-                a_O = a_O - wp.outer(unit_j(j), a_point)
-                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            a_A_jac, a_O, a_cw = point_jacobian_vjp(m.jtype, base, A, O, cw, a_Jv)
+            a_A = a_A + a_A_jac
             # cw = x + rc, rc = R c, Iw = R I R^T
             a_rc = a_rc + a_cw
             wp.adjoint[x] += a_cw

@@ -180,6 +180,27 @@ def build_contact(t) -> types.SimpleNamespace:
         return Jv
 
     @wp.func
+    def point_jacobian_vjp(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3, O: matJ3, p: vec3, a_Jv: matJ3):
+        """Adjoints of (A, O, p) from the adjoint of point_jacobian(jtype, base, A, O, p), for the
+        hand-written adjoints: row j is A_j x (p - O_j) for a hinge, A_j for a slider."""
+        a_A = matJ3()
+        a_O = matJ3()
+        a_p = vec3()
+        for j in range(J):
+            a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+            is_hinge = True
+            if wp.static(not HINGES_ONLY):
+                is_hinge = jtype[base + j] == HINGE
+            a_axis = a_row
+            if is_hinge:
+                a_axis = wp.cross(vec3(p[0] - O[j, 0], p[1] - O[j, 1], p[2] - O[j, 2]), a_row)
+                a_point = wp.cross(a_row, vec3(A[j, 0], A[j, 1], A[j, 2]))
+                a_p = a_p + a_point
+                a_O = a_O - wp.outer(unit_j(j), a_point)
+            a_A = a_A + wp.outer(unit_j(j), a_axis)
+        return a_A, a_O, a_p
+
+    @wp.func
     def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
                       A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
         """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
@@ -277,23 +298,8 @@ def build_contact(t) -> types.SimpleNamespace:
             a_r = wp.cross(wo, a_vrel)
             a_cp = a_cp + a_r
             wp.adjoint[xo] += -a_r
-            # Jv row j: A_j x (cp - O_j) for a hinge, A_j for a slider
-            a_A = matJ3()
-            a_O = matJ3()
-            for j in range(J):
-                a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
-                axis = vec3(A[j, 0], A[j, 1], A[j, 2])
-                is_hinge = True
-                if wp.static(not HINGES_ONLY):
-                    is_hinge = m.jtype[base + j] == HINGE
-                if is_hinge:
-                    a_axis = wp.cross(vec3(cp[0] - O[j, 0], cp[1] - O[j, 1], cp[2] - O[j, 2]), a_row)
-                    a_point = wp.cross(a_row, axis)
-                    a_cp = a_cp + a_point
-                    a_O = a_O - wp.outer(unit_j(j), a_point)
-                else:
-                    a_axis = a_row
-                a_A = a_A + wp.outer(unit_j(j), a_axis)
+            a_A, a_O, a_jac_cp = point_jacobian_vjp(m.jtype, base, A, O, cp, a_Jv)
+            a_cp = a_cp + a_jac_cp
             wp.adjoint[A] += a_A
             wp.adjoint[O] += a_O
             # cp = p - rad n, n = Ro n_o, phi = rad - d
@@ -339,5 +345,6 @@ def build_contact(t) -> types.SimpleNamespace:
         return
 
     return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,
+                                 point_jacobian_vjp=point_jacobian_vjp,
                                  object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
                                  sphere_near=sphere_near)

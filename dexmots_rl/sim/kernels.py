@@ -124,7 +124,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     point_contact, sphere_near = contact.point_contact, contact.sphere_near
     chain = build_chain(types.SimpleNamespace(
         dtype=dtype, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, matJ3=matJ3, matJJ1=matJJ1, Model=Model,
-        Saved=Saved, J=J, hinges_only=HINGES_ONLY, unit_j=unit_j, point_jacobian=point_jacobian))
+        Saved=Saved, J=J, hinges_only=HINGES_ONLY, point_jacobian=point_jacobian,
+        point_jacobian_vjp=contact.point_jacobian_vjp))
     fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
     vecJ_row, link_inertia = chain.vecJ_row, chain.link_inertia
 
@@ -282,7 +283,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             q[ro, i] = q[r, i] + dt * v_new
         return vec7(f_obj[0], f_obj[1], f_obj[2], t_obj[0], t_obj[1], t_obj[2], cforce)
 
-    # the kernel's reverse pass reads the finger's result back instead of re-running it (see contact_kernels)
+    # the kernel's reverse pass reads the finger's result back instead of re-running it (see contact_kernels);
+    # warp requires a replay to repeat the forward's signature
     @wp.func_replay(finger_step)
     def replay_finger_step(
         m: Model,
