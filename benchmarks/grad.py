@@ -1,13 +1,13 @@
 """Runnable wrapper: ``python benchmarks/grad.py [options]`` == ``dexmots-bench grad [options]``.
 
-The logic is in :mod:`dexmots_rl.trainers.bench_grad`; see ``dexmots-bench grad --help``.
+The logic is in :mod:`dexmots_rl.apps.bench_grad`; see ``dexmots-bench grad --help``.
 """
 
 from __future__ import annotations
 
 import sys
 
-from dexmots_rl.trainers.bench import main
+from dexmots_rl.apps.bench import main
 
 __all__: list[str] = []
 

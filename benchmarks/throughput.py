@@ -1,13 +1,13 @@
 """Runnable wrapper: ``python benchmarks/throughput.py [options]`` == ``dexmots-bench throughput [options]``.
 
-The logic is in :mod:`dexmots_rl.trainers.bench_throughput`; see ``dexmots-bench throughput --help``.
+The logic is in :mod:`dexmots_rl.apps.bench_throughput`; see ``dexmots-bench throughput --help``.
 """
 
 from __future__ import annotations
 
 import sys
 
-from dexmots_rl.trainers.bench import main
+from dexmots_rl.apps.bench import main
 
 __all__: list[str] = []
 

@@ -153,16 +153,14 @@ def check_image(img: np.ndarray, viewer, min_pixels: int) -> dict:
 
 def make_recording(path: Path, num_envs: int = 2, steps: int = 10) -> Path:
     """A small scripted screw_claw recording (the fingers close on the knob)."""
-    from tensordict.nn import TensorDictModule
-
-    from dexmots_rl.envs import make_env
-    from dexmots_rl.trainers.rollout import scripted_claw_action
+    from dexmots_rl.envs import ScriptedPolicy, make_env
     from dexmots_rl.viz import EpisodeRecorder
 
-    env = make_env("screw_claw", num_envs=num_envs, differentiable=False, seed=0, max_episode_steps=steps)
-    policy = TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
+    env = make_env("screw_claw", num_envs=num_envs, differentiable=False, seed=0, max_episode_steps=steps,
+                   action="torque")
     with EpisodeRecorder(path, env) as rec:
-        rec.record_rollout(env.rollout(steps, policy, auto_reset=False, break_when_any_done=False))
+        rec.record_rollout(env.rollout(steps, ScriptedPolicy(env.base_env), auto_reset=False,
+                                       break_when_any_done=False, tensordict=env.reset()))
     return path
 
 

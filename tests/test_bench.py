@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from dexmots_rl.trainers.bench import format_table, run
+from dexmots_rl.apps.bench import format_table, run
 
 
 def test_throughput_bench_reports_every_rate_in_contact():

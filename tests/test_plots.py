@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from torchrl.record.loggers.csv import CSVLogger
 
-from dexmots_rl.trainers.plot import main as plot_main
+from dexmots_rl.apps.plot import main as plot_main
 from dexmots_rl.viz.plots import landscape_data, load_scalars, plot_curves, plot_landscape
 
 GRID = 5

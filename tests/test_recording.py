@@ -11,8 +11,8 @@ from mcap.reader import make_reader
 from tensordict.nn import TensorDictModule
 
 from dexmots_rl.envs import make_env
-from dexmots_rl.trainers import record
-from dexmots_rl.trainers.rollout import scripted_claw_action
+from dexmots_rl.apps import record
+from dexmots_rl.envs.tasks.screw_claw import scripted_claw_action
 from dexmots_rl.viz import EpisodeRecorder, RecordingFormatError, read_recording
 from dexmots_rl.viz.geometry import scene_geometry
 

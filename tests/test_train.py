@@ -12,9 +12,10 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from dexmots_rl.trainers.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from dexmots_rl.trainers.evaluate import evaluate_policy, main as eval_main, policy_from_checkpoint
-from dexmots_rl.trainers.train import CONFIG_DIR, train
+from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from dexmots_rl.algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+from dexmots_rl.apps.eval import main as eval_main
+from dexmots_rl.apps.train import CONFIG_DIR, run as train
 
 TINY = ["task.num_envs=4", "algo.horizon=4", "algo.critic_iterations=2", "algo.critic_minibatches=2",
         "algo.hidden=[16]", "eval.episodes=3", "task.max_episode_steps=6", "progress=false", "checkpoint_every=1"]
@@ -117,7 +118,7 @@ def test_ahac_runs_and_records_its_horizon(tmp_path):
 @pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"), ("task.action=velocity", "action"),
                                              ("task.reward.lambda_act=-1", "lambda_act")])
 def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
-    proc = subprocess.run([sys.executable, "-m", "dexmots_rl.trainers.train", *TINY_SHAC,
+    proc = subprocess.run([sys.executable, "-m", "dexmots_rl.apps.train", *TINY_SHAC,
                            f"run_dir={tmp_path}/r", "algo.iterations=1", override], capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0
     last = proc.stderr.strip().splitlines()[-1]
@@ -127,7 +128,7 @@ def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
 def test_torchrun_two_processes(tmp_path):
     torchrun = Path(sys.executable).parent / "torchrun"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m", "dexmots_rl.trainers.train",
+    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m", "dexmots_rl.apps.train",
                            *TINY_SHAC, f"run_dir={tmp_path}/r", "algo.iterations=2"], capture_output=True, text=True,
                           timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -12,7 +12,7 @@ import pytest
 from tensordict.nn import TensorDictModule
 
 from dexmots_rl.envs import make_env
-from dexmots_rl.trainers.rollout import scripted_claw_action
+from dexmots_rl.envs.tasks.screw_claw import scripted_claw_action
 from dexmots_rl.viz import EpisodeRecorder, read_recording
 from dexmots_rl.viz.viewer import PortInUseError, ReplayViewer, check_port_free, main
 

@@ -1,15 +1,22 @@
-"""TorchRL environments: ``DexEnv`` and one module per task; ``make_env`` builds them by name."""
+"""TorchRL environments: ``DexEnv``, one module per task (:mod:`.tasks`), and the registry.
+
+``make_env(name, **overrides)`` builds exactly the task ``dexmots-train task=<name>`` trains;
+``list_tasks()`` names them; ``task_config(name)`` is a task's typed config (its defaults).
+"""
 
 from __future__ import annotations
 
 from .actions import ACTION_TYPES, ActionMap, validate_action
-from .base import DexEnv
+from .base import DexEnv, ScriptedPolicy
+from .config import BenchPoses, PlanProblem, TaskConfig
 from .references import load_reference_bank
-from .registry import OBS_MODES, TASKS, make_env
+from .registry import OBS_MODES, TASKS, list_tasks, make_env, register_task, task_config, task_entry, task_scene
 from .rewards import RewardCoefficients, angle_tracking_reward
-from .screw_claw import ScrewClawEnv
 from .transforms import GOAL_MODES, POLICY_KEYS, GoalConditioning, observation_transform
+from . import tasks  # noqa: E402,F401  (registers the tasks)
+from .tasks.screw_claw import ScrewClawConfig, ScrewClawEnv  # noqa: E402
 
-__all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "DexEnv", "GOAL_MODES", "GoalConditioning", "OBS_MODES",
-           "POLICY_KEYS", "RewardCoefficients", "TASKS", "load_reference_bank", "make_env", "observation_transform",
-           "angle_tracking_reward", "ScrewClawEnv"]
+__all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "BenchPoses", "DexEnv", "ScriptedPolicy", "GOAL_MODES", "GoalConditioning",
+           "OBS_MODES", "POLICY_KEYS", "PlanProblem", "RewardCoefficients", "TASKS", "TaskConfig",
+           "load_reference_bank", "list_tasks", "make_env", "observation_transform", "register_task",
+           "angle_tracking_reward", "task_config", "task_entry", "task_scene", "ScrewClawConfig", "ScrewClawEnv"]

@@ -1,8 +1,8 @@
 """DexEnv: a functional, batched torchrl ``EnvBase`` over the warp simulator.
 
 The full physical state of every world travels in the TensorDict under ``"sim"``
-(``("sim", "joint_q")``, ``("sim", "joint_qd")``, ``("sim", "params")``), so a step is a pure function of
-its input TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
+(``("sim", "joint_q")``, ``("sim", "joint_qd")``, and the named physical parameters under
+``("sim", "params", name)``, e.g. ``"joint_damping"``), so a step is a pure function of its input TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
 (rewards, observations) back to the actions and the input state through :class:`~dexmots_rl.sim.SimStep`.
 
 Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward`,
@@ -18,60 +18,76 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
 from .actions import ActionMap, validate_action
 from .references import load_reference_bank
 
-__all__ = ["DexEnv", "MAX_JOINT_SPEED"]
+__all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s (m/s); a world faster than this has blown up and is reset
 
 
 class DexEnv(EnvBase):
-    """Base class: specs, functional step/reset, blow-up handling. See the task modules."""
+    """Base class: specs, functional step/reset, blow-up handling. See the task modules.
+
+    A task subclass sets ``asset`` (its MJCF in :mod:`dexmots_rl.assets`) and ``config_class``, and is
+    built from a config: ``TaskEnv(config, num_envs=...)`` (``make_env`` does this).
+    """
 
     batch_locked = True
+    asset: str = ""
+    # evaluation breakdowns: name -> key of a per-episode value; dexmots-eval reports success by its quartiles
+    breakdowns: dict = {}
+    bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
+    plan_problem = None  # PlanProblem for dexmots-bench plan
+
+    @classmethod
+    def asset_path(cls):
+        from ..assets import asset_path
+
+        return asset_path(cls.asset)
 
     def __init__(
         self,
-        scene: SceneModel,
-        num_envs: int,
+        config,
+        num_envs: int | None = None,
         device: str | torch.device = "cpu",
         differentiable: bool = True,
-        action: str = "torque",
-        max_episode_steps: int = 100,
-        substeps: int = 16,
-        dtype: torch.dtype = torch.float32,
         seed: int | None = None,
-        contact=None,
-        damping_range: tuple[float, float] | None = None,
-        friction_range: tuple[float, float] | None = None,
-        references=None,
+        dtype: torch.dtype = torch.float32,
         adjoint_clip: float | None = None,
+        contact=None,
+        scene: SceneModel | None = None,
     ):
-        if not isinstance(num_envs, int) or num_envs <= 0:
+        self.config = config.validate()
+        num_envs = config.num_envs if num_envs is None else num_envs
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs <= 0:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if max_episode_steps <= 0:
-            raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
-        for name, rng in (("damping_range", damping_range), ("friction_range", friction_range)):
-            if rng is not None and not (len(rng) == 2 and 0 <= rng[0] <= rng[1]):
-                raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {rng!r}")
         device = torch.device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
-        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=substeps, contact=contact,
-                             adjoint_clip=adjoint_clip)
-        self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, max_episode_steps
+        if scene is None:
+            from ..sim import load_scene
+
+            scene = load_scene(self.asset_path())
+        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
+                             contact=contact, adjoint_clip=adjoint_clip)
+        self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
-        self.damping_range = damping_range or (scene.object_damping,) * 2
-        self.friction_range = friction_range or (scene.object_friction,) * 2
-        self.reference_bank = None if references is None else load_reference_bank(references, dtype, device)
-        self.actions = ActionMap(self.sim, action)
-        self.action_type = action
+        self.param_ranges = self._param_ranges()
+        self.reference_bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
+        self.actions = ActionMap(self.sim, config.action)
+        self.action_type = config.action
         self._make_specs()
         self.generator = torch.Generator(device=device)
         self._set_seed(seed if seed is not None else int(torch.empty((), dtype=torch.int64).random_().item()))
+
+    def _param_ranges(self) -> dict[str, tuple[float, float]]:
+        """Per-episode randomisation of the scene's named parameters, ``{name: (low, high)}`` (the task
+        config's ranges); a parameter not named keeps the MJCF's value."""
+        return {}
 
     # ------------------------------------------------------------------------------------------ specs
     def _obs_shapes(self) -> dict:
@@ -80,7 +96,7 @@ class DexEnv(EnvBase):
             ("hand", "q"): (sim.nu,),
             ("hand", "qd"): (sim.nu,),
             ("object", "pose"): (7,),
-            ("object", "q"): (s.object_nq if s.object_kind == 0 else 0,),
+            ("object", "q"): (s.object_nq if s.articulated else 0,),
             ("object", "qd"): (s.object_nv,),
             ("object", "wrench"): (6,),
             ("object", "contact_force"): (1,),
@@ -90,7 +106,7 @@ class DexEnv(EnvBase):
             ("task", "goal"): (self.goal_dim,),
             ("sim", "joint_q"): (sim.nq,),
             ("sim", "joint_qd"): (sim.nv,),
-            ("sim", "params"): (2,),
+            **{("sim", "params", name): (1,) for name in sim.scene.param_names},
         }
 
     def _make_specs(self):
@@ -133,9 +149,14 @@ class DexEnv(EnvBase):
     def achieved_goal(self, obs: dict) -> torch.Tensor:
         raise NotImplementedError
 
+    def scripted_action(self, td: TensorDictBase) -> torch.Tensor:
+        """A hand-written controller's torque-space action [N, nu] for the state in ``td`` (smoke runs,
+        recordings and plots); tasks without one raise ``NotImplementedError``."""
+        raise NotImplementedError(f"{type(self).__name__} has no scripted controller")
+
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
         """``(reward [N, 1], {term name: [N, 1]})`` after a step; ``task`` holds ``("task", ...)`` entries
-        (goal, the step counter after the step, ref_index) and ``("sim", "params")``."""
+        (goal, the step counter after the step, ref_index) and the ``("sim", "params", name)`` entries."""
         raise NotImplementedError
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
@@ -153,10 +174,15 @@ class DexEnv(EnvBase):
         lo, hi = lo_hi
         return lo + (hi - lo) * self._rand(n, 1)
 
-    def sample_params(self, n: int) -> torch.Tensor:
-        """Per-episode object joint ``[damping, friction]`` [n, 2], uniform in ``damping_range`` /
-        ``friction_range`` (seeded by the env's generator): the randomisation hook every task reuses."""
-        return torch.cat([self._uniform(n, self.damping_range), self._uniform(n, self.friction_range)], -1)
+    def sample_params(self, n: int) -> dict[str, torch.Tensor]:
+        """Per-episode physical parameters ``{name: [n, 1]}``: uniform in :attr:`param_ranges` (seeded by
+        the env's generator), the MJCF's value for the others."""
+        out = {}
+        for name, value in self.sim.scene.default_param_values().items():
+            rng = self.param_ranges.get(name)
+            out[name] = (self._uniform(n, rng) if rng is not None
+                         else torch.full((n, 1), value, dtype=self.dtype, device=self.device))
+        return out
 
     def sample_ref_index(self, n: int) -> torch.Tensor:
         """Which plan of the reference bank each world follows this episode (0 without a bank)."""
@@ -171,14 +197,14 @@ class DexEnv(EnvBase):
             ("hand", "q"): q[:, :nu],
             ("hand", "qd"): qd[:, :nu],
             ("object", "pose"): body_pose[:, -1],
-            ("object", "q"): q[:, nu:] if self.sim.scene.object_kind == 0 else q[:, :0],
+            ("object", "q"): q[:, nu:] if self.sim.scene.articulated else q[:, :0],
             ("object", "qd"): qd[:, nu:],
             ("object", "wrench"): wrench,
             ("object", "contact_force"): contact_force.unsqueeze(-1),
             ("fingertips", "pos"): tips,
             ("sim", "joint_q"): q,
             ("sim", "joint_qd"): qd,
-            ("sim", "params"): params,
+            **{("sim", "params", name): value for name, value in params.items()},
             ("task", "goal"): goal,
             "desired_goal": goal,
         }
@@ -229,13 +255,14 @@ class DexEnv(EnvBase):
         validate_action(action, self.num_envs, self.actions.action_dim)
         q = tensordict.get(("sim", "joint_q"))
         qd = tensordict.get(("sim", "joint_qd"))
-        params = tensordict.get(("sim", "params"))
+        params = {name: tensordict.get(("sim", "params", name)) for name in self.sim.scene.param_names}
         goal = tensordict.get(("task", "goal"))
         step = tensordict.get(("task", "step")) + 1
-        task = {("task", "goal"): goal, ("task", "step"): step, ("sim", "params"): params,
-                ("task", "ref_index"): tensordict.get(("task", "ref_index"))}
+        task = {("task", "goal"): goal, ("task", "step"): step, ("task", "ref_index"): tensordict.get(("task", "ref_index")),
+                **{("sim", "params", name): value for name, value in params.items()}}
         if not self.differentiable:
-            q, qd, params, action = q.detach(), qd.detach(), params.detach(), action.detach()
+            q, qd, action = q.detach(), qd.detach(), action.detach()
+            params = {name: value.detach() for name, value in params.items()}
         with torch.set_grad_enabled(self.differentiable and torch.is_grad_enabled()):
             out = self.sim.step(q, qd, self.actions(action.to(self.dtype)), params)
             obs = self._observe(out.joint_q, out.joint_qd, params, goal, out.wrench, out.contact_force,
@@ -269,3 +296,19 @@ class DexEnv(EnvBase):
             "done": terminated | truncated,
         })
         return next_td
+
+
+class ScriptedPolicy(TensorDictModuleBase):
+    """The task's scripted controller (:meth:`DexEnv.scripted_action`) as a torchrl policy module; the
+    env must use the ``"torque"`` action space."""
+
+    def __init__(self, env: DexEnv):
+        super().__init__()
+        if env.action_type != "torque":
+            raise ValueError(f"the scripted controller acts in torque space; the env uses action={env.action_type!r} "
+                             "(build it with action='torque')")
+        self.env = env
+        self.in_keys, self.out_keys = [("task", "goal"), ("sim", "joint_q")], ["action"]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return tensordict.set("action", self.env.scripted_action(tensordict).to(self.env.dtype))

@@ -208,7 +208,7 @@ def fingertip_reward(fingertips: torch.Tensor, object_pos: torch.Tensor) -> torc
     return torch.exp(-dist).sum(-1, keepdim=True)
 
 
-@dataclass(frozen=True)
+@dataclass
 class RewardCoefficients:
     """Eq. 3's coefficients ``λ``; each must be finite and ≥ 0 (``r_act`` is already negative).
 

@@ -82,7 +82,7 @@ class GoalConditioning(StateTransform):
         env = self._task()
         if self.mode == "pose":
             return env.goal_dim, env.goal_dim
-        articulated = env.sim.scene.object_kind == 0
+        articulated = env.sim.scene.articulated
         coords = env.sim.scene.object_nq if articulated else 7
         wrench = env.sim.scene.object_nv if articulated else 6
         return self.horizon * (coords + (wrench if self.mode == "pose_wrench" else 0)), self.horizon * coords
@@ -96,7 +96,7 @@ class GoalConditioning(StateTransform):
         env = self._task()
         steps = td.get(("task", "step")) + torch.arange(1, self.horizon + 1, device=td.device)
         ref = env.reference(td, steps)
-        articulated = env.sim.scene.object_kind == 0
+        articulated = env.sim.scene.articulated
         coords = (ref["joint_q"] if articulated else ref["pose"]).to(achieved.dtype)
         parts = [coords]
         if self.mode == "pose_wrench":

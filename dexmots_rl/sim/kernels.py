@@ -24,7 +24,7 @@ import warp as wp
 
 from .chain_kernels import build_chain
 from .contact_kernels import build_contact
-from .model import HINGE, OBJECT_HINGE
+from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
 __all__ = ["build_kernels"]
 
@@ -37,6 +37,9 @@ LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
 LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
 FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
+# columns of the packed per-world parameter array, by name (model.OBJECT_PARAMS)
+P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
+                                              ("joint_damping", "joint_friction", "joint_stiffness", "joint_rest"))
 
 
 @functools.lru_cache(maxsize=None)
@@ -351,11 +354,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         ext_t = vec3(ext[w, 3], ext[w, 4], ext[w, 5])
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
-            damp = params[w, 0]
+            damp = params[w, P_DAMPING]
+            spring = params[w, P_STIFFNESS]
+            th = q[r, o]
             th_d = qd[r, o]
             torque = wp.dot(a, t_obj + ext_t + wp.cross(Ro * m.obj_com, m.obj_mass * m.gravity))
-            torque = torque - damp * th_d - params[w, 1] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
-            v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp)
+            torque = torque - damp * th_d - params[w, P_FRICTION] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
+            # the spring is integrated implicitly like the damping (stable at any stiffness)
+            torque = torque - spring * (th + dt * th_d - params[w, P_REST])
+            v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp + dt * dt * spring)
             qd[ro, o] = v_new
             q[ro, o] = q[r, o] + dt * v_new
         else:

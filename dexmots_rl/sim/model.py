@@ -17,11 +17,20 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["AssetError", "SceneModel", "ContactParams", "load_scene"]
+__all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "OBJECT_PARAM_DOCS", "load_scene"]
 
 HINGE, SLIDE = 0, 1
 OBJECT_HINGE, OBJECT_FREE = 0, 1
 SHAPE_CONVEX, SHAPE_SPHERE, SHAPE_CYLINDER, SHAPE_SDF = 0, 1, 2, 3
+# per-world object joint parameters, by name: the kernels read column OBJECT_PARAMS.index(name) of the
+# packed [N, P] array the simulator builds from the named tensors (see Simulator.pack_params)
+OBJECT_PARAMS = ("joint_damping", "joint_friction", "joint_stiffness", "joint_rest")
+OBJECT_PARAM_DOCS = {
+    "joint_damping": "viscous damping of the object joint (N m s/rad or N s/m)",
+    "joint_friction": "Coulomb friction of the object joint (N m or N), smoothed near zero speed",
+    "joint_stiffness": "spring stiffness of the object joint toward joint_rest (N m/rad or N/m)",
+    "joint_rest": "rest position of the object joint's spring (rad or m)",
+}
 MAX_PLANES = 32  # convex objects with more faces than this (or non-convex meshes) use a signed-distance grid
 SDF_RESOLUTION = 40  # grid points along the longest padded axis
 
@@ -98,6 +107,8 @@ class SceneModel:
     object_armature: float
     object_damping: float
     object_friction: float
+    object_stiffness: float  # joint spring toward object_rest (MJCF joint stiffness)
+    object_rest: float  # the spring's rest position (MJCF springref)
     object_q0: np.ndarray  # initial generalized coordinates of the object
     object_shape: int
     object_planes: np.ndarray  # [K, 4] outward normal + offset (n.p <= d inside), object frame
@@ -112,6 +123,23 @@ class SceneModel:
     @property
     def num_hand_dofs(self) -> int:
         return self.num_fingers * self.joints_per_finger
+
+    @property
+    def articulated(self) -> bool:
+        """The object moves on a joint (its coordinates are joint angles), not as a free body."""
+        return self.object_kind == OBJECT_HINGE
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Names of the per-world physical parameters (``("sim", "params", name)``, each ``[N, 1]``); a free
+        object has no joint and so no parameters."""
+        return OBJECT_PARAMS if self.articulated else ()
+
+    def default_param_values(self) -> dict[str, float]:
+        """The MJCF's value of every parameter in :attr:`param_names`."""
+        values = {"joint_damping": self.object_damping, "joint_friction": self.object_friction,
+                  "joint_stiffness": self.object_stiffness, "joint_rest": self.object_rest}
+        return {name: values[name] for name in self.param_names}
 
     @property
     def object_nq(self) -> int:
@@ -359,6 +387,8 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         object_armature=float(m.dof_armature[odof]),
         object_damping=float(m.dof_damping[odof]),
         object_friction=float(m.dof_frictionloss[odof]),
+        object_stiffness=float(m.jnt_stiffness[oj]),
+        object_rest=float(m.qpos_spring[m.jnt_qposadr[oj]]) if kind == OBJECT_HINGE else 0.0,
         object_q0=q0,
         object_shape=shape,
         object_planes=planes,

@@ -15,6 +15,7 @@ import weakref
 import numpy as np
 import torch
 import warp as wp
+from tensordict import TensorDict
 
 from .kernels import build_kernels
 from .model import HINGE, MAX_PLANES, ContactParams, SceneModel
@@ -181,14 +182,33 @@ class Simulator:
         z = self._zeros(self.num_worlds, self.nu)
         return Control(z, z, z, z)
 
-    def default_params(self) -> torch.Tensor:
-        """Per-world object parameters: [joint damping, joint friction] (from the MJCF)."""
-        p = torch.tensor([self.scene.object_damping, self.scene.object_friction], dtype=self.dtype)
-        return p.to(self.torch_device).expand(self.num_worlds, 2).contiguous()
+    @property
+    def num_params(self) -> int:
+        """Columns of the packed parameter array the kernels read (at least one, so it is never empty)."""
+        return max(1, len(self.scene.param_names))
+
+    def default_params(self) -> TensorDict:
+        """Per-world physical parameters from the MJCF, by name (:attr:`SceneModel.param_names`): a
+        TensorDict ``[N]`` of ``[N, 1]`` tensors, e.g. ``"joint_damping"``, ``"joint_friction"``."""
+        values = {name: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
+                  for name, v in self.scene.default_param_values().items()}
+        return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
+
+    def pack_params(self, params) -> torch.Tensor:
+        """The named parameters (a TensorDict or dict of ``[N, 1]`` tensors) as the ``[N, P]`` array the
+        kernels read, in :attr:`SceneModel.param_names` order (differentiable: a cat)."""
+        names = self.scene.param_names
+        if not names:
+            return self._zeros(self.num_worlds, 1)
+        missing = [n for n in names if n not in params.keys()]
+        if missing:
+            raise ValueError(f"params lacks {', '.join(missing)}; this scene's parameters are {', '.join(names)}")
+        return torch.cat([params[n].reshape(-1, 1) for n in names], -1)
 
     # ------------------------------------------------------------------------------------------- step
     def step(self, joint_q, joint_qd, control: Control, params) -> StepOutput:
-        """One env step (``substeps`` physics substeps); differentiable w.r.t. every tensor input."""
+        """One env step (``substeps`` physics substeps); differentiable w.r.t. every tensor input.
+        ``params``: the named per-world parameters (:meth:`default_params`)."""
         n = joint_q.shape[0]
         if n != self.num_worlds:
             raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
@@ -198,7 +218,7 @@ class Simulator:
                 self._no_wrench = self._zeros(n, 6)  # read only: SimStep copies its inputs
             ext = self._no_wrench
         return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd,
-                                        params, ext))
+                                        self.pack_params(params), ext))
 
     def observe(self, joint_q, joint_qd=None):
         """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping."""

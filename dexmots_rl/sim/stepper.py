@@ -103,7 +103,7 @@ class Trajectory:
         self.saved.inertia = wp.empty((saved_rows, scene.num_hand_dofs), dtype=k.matJJ1, device=sim.device)
         # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
-        self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, 2), z(n, 6)]
+        self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.num_params), z(n, 6)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
         self.blocks = world_blocks(n, sim.device)
         self.w_traj, self.w_acc, self.w_controls, self.w_final, self.w_obs = self._wrap(

@@ -18,7 +18,9 @@ the external wrench the hand must supply (besides gravity, joint damping and fri
 
 Example:
     >>> from dexmots_rl.trajectories import optimize_wrenches
-    >>> plan = optimize_wrenches("screw_claw", start=0.0, goal=0.5, steps=10, iterations=30, progress=False)
+    >>> from dexmots_rl.assets import asset_path
+    >>> plan = optimize_wrenches(asset_path("claw_screw.xml"), start=0.0, goal=0.5, steps=10, iterations=30,
+    ...                          progress=False)
     >>> plan.trajectory.horizon, plan.final_error < plan.initial_error
     (11, True)
 """
@@ -89,19 +91,15 @@ def interpolate_reference(start: torch.Tensor, goal: torch.Tensor, steps: int, f
     return torch.cat([lin[..., :3], quat], -1)
 
 
-def _scene_of(task):
+def _scene_of(scene):
     from ..sim import SceneModel, load_scene
 
-    if isinstance(task, SceneModel):
-        return task
-    if isinstance(task, (str, Path)) and str(task).endswith(".xml"):
-        return load_scene(task)
-    from ..assets import asset_path
-    from ..envs.registry import TASKS
-
-    if task not in TASKS:
-        raise ValueError(f"task {task!r} is unknown; known tasks: {', '.join(sorted(TASKS))} (or an MJCF path)")
-    return load_scene(asset_path(TASKS[task].asset))
+    if isinstance(scene, SceneModel):
+        return scene
+    if isinstance(scene, (str, Path)) and str(scene).endswith(".xml"):
+        return load_scene(scene)
+    raise ValueError(f"scene must be a SceneModel or an MJCF path, got {scene!r} (a task's scene: "
+                     "dexmots_rl.envs.task_scene(name))")
 
 
 def _as_batch(name: str, x, nq: int, dtype) -> torch.Tensor:
@@ -134,7 +132,7 @@ def optimize_wrenches(
     iterations: int = 200,
     lr: float = 0.5,
     max_grad_norm: float = 10.0,
-    params: torch.Tensor | None = None,
+    params: dict | None = None,
     substeps: int = 16,
     dt: float | None = None,
     length_scale: float = 0.1,
@@ -144,13 +142,15 @@ def optimize_wrenches(
     """Plan the wrenches that move the object alone from ``start`` to ``goal`` in ``steps`` env steps.
 
     Args:
-        task: a registered task name (``"screw_claw"``), an MJCF path, or a :class:`~dexmots_rl.sim.SceneModel`.
+        task: the scene, a :class:`~dexmots_rl.sim.SceneModel` or an MJCF path (a registered task's:
+            :func:`dexmots_rl.envs.task_scene`).
         start, goal: object coordinates, ``[nq]`` or ``[N, nq]`` for N plans at once (a hinge: the angle;
             a free body: pos + wxyz quat).
         steps: env steps T of the plan (the trajectory has T + 1 rows).
         iterations: Adam iterations; ``lr`` (N, N·m per iteration, decayed linearly to 5%);
             ``max_grad_norm`` clips the gradient of each iteration.
-        params: ``[N, 2]`` object joint damping and friction per plan (default: the MJCF's).
+        params: named object parameters (``{"joint_damping": [N] or scalar, ...}``, any of the scene's
+            :attr:`~dexmots_rl.sim.SceneModel.param_names`) per plan; the rest are the MJCF's.
         dt: env step (default: the MJCF timestep × ``substeps``, the envs' default).
     """
     from ..sim import Control, ContactParams, Simulator
@@ -158,7 +158,7 @@ def optimize_wrenches(
     if steps < 1 or iterations < 0:
         raise ValueError(f"steps must be >= 1 and iterations >= 0, got steps={steps}, iterations={iterations}")
     scene = _scene_of(task)
-    free_body = scene.object_kind != 0
+    free_body = not scene.articulated
     nq = scene.object_nq
     start = _as_batch("start", start, nq, dtype)
     goal = _as_batch("goal", goal, nq, dtype)
@@ -168,9 +168,12 @@ def optimize_wrenches(
     n = start.shape[0]
     # no contact: the hand cannot touch the object, so the object moves under the planned wrench alone
     sim = Simulator(scene, n, dtype=dtype, substeps=substeps, dt=dt, contact=ContactParams(stiffness=0.0, friction=0.0))
-    if params is None:
-        params = sim.default_params()
-    params = torch.as_tensor(params, dtype=dtype).reshape(-1, 2).expand(n, 2).contiguous()
+    named = sim.default_params()
+    for name, value in (params or {}).items():
+        if name not in named.keys():
+            raise ValueError(f"params: {name!r} is not a parameter of this scene ({', '.join(named.keys())})")
+        named.set(name, torch.as_tensor(value, dtype=dtype).reshape(-1, 1).expand(n, 1).contiguous())
+    params = named
     reference = interpolate_reference(start, goal, steps, free_body)
     q0, qd0 = sim.initial_state()
     q0 = q0.clone()

@@ -1,7 +1,7 @@
 """Matplotlib figures (Agg backend): the objective landscape of the paper's Fig. 4, and learning curves.
 
 **Landscape** (:func:`landscape_data`, :func:`plot_landscape`): the screw-claw hand closes on the knob with
-the scripted controller of :mod:`dexmots_rl.trainers.rollout` until the fingers touch it; from that one
+the scripted controller of :mod:`dexmots_rl.envs.tasks.screw_claw` until the fingers touch it; from that one
 state, every action of a grid over the two distal joints (the other joints keep the scripted action) is
 stepped once in a batch of worlds with ``differentiable=True``, and the one-step objectives
 
@@ -79,17 +79,18 @@ def landscape_data(task: str = "screw_claw", grid: int = 21, span: float = 0.5,
 
     from ..envs import make_env
     from ..envs.rewards import angle_tracking_reward, wrench_reward
-    from ..trainers.rollout import scripted_claw_action
+    from ..envs.tasks.screw_claw import scripted_claw_action
 
     if task != "screw_claw":
         raise ValueError(f"the landscape's scripted closing controller is for screw_claw only, got {task!r}")
     g2 = grid * grid
     n = 2 * g2  # one copy of the grid per objective: a single backward pass gives both gradients
-    env = make_env(task, num_envs=n, differentiable=True, seed=seed, raw=True, dtype=dtype)
+    env = make_env(task, num_envs=n, differentiable=True, seed=seed, raw=True, dtype=dtype, action="torque")
     pose_scale = env.pose_scale if pose_scale is None else pose_scale
     td = env.reset()
     for key in STATE_KEYS:  # every world starts from world 0's state
-        td.set(key, td.get(key)[:1].expand_as(td.get(key)).clone())
+        value = td.get(key)
+        td.set(key, value[:1].expand(value.shape).clone())
     touched, steps = 0, 0
     with torch.no_grad():
         while touched <= contact_steps:

@@ -55,9 +55,8 @@ def grid_offsets(num_worlds: int, spacing: float) -> np.ndarray:
 
 
 def _task_name(base) -> str:
-    from ..envs.registry import TASKS
-
-    return next((name for name, cls in TASKS.items() if type(base) is cls), type(base).__name__)
+    config = getattr(base, "config", None)
+    return getattr(config, "name", None) or type(base).__name__
 
 
 def _pb():

@@ -13,26 +13,12 @@ import logging
 import time
 
 import torch
-from tensordict.nn import TensorDictModule
 
-from ..envs import make_env
+from ..envs import ScriptedPolicy, make_env
 
-__all__ = ["scripted_claw_action", "run", "main"]
+__all__ = ["run", "main"]
 
 log = logging.getLogger(__name__)
-
-
-def scripted_claw_action(desired_goal: torch.Tensor, squeeze: float = 0.6, twist: float = 0.4) -> torch.Tensor:
-    """Close both fingers on the knob and push them tangentially in the goal's direction.
-
-    Joint order: right proximal, right distal, left proximal, left distal (torque actions in [-1, 1]).
-    Closing is negative on the right finger and positive on the left; a common-mode offset on the
-    proximal joints slides both fingertips the same way around the knob.
-    """
-    goal_sign = torch.sign(desired_goal)
-    close = torch.tensor([-squeeze, -squeeze, squeeze, squeeze], dtype=goal_sign.dtype)
-    twist_dir = torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=goal_sign.dtype)
-    return (close - twist * goal_sign * twist_dir).clamp(-1, 1)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -53,8 +39,8 @@ def run(argv: list[str] | None = None) -> dict:
 
     t0 = time.perf_counter()
     env = make_env(args.task, num_envs=args.num_envs, device=args.device, differentiable=False, seed=args.seed,
-                   max_episode_steps=args.steps)
-    policy = TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
+                   max_episode_steps=args.steps, action="torque")
+    policy = ScriptedPolicy(env.base_env)
     env.step(policy(env.reset()))  # first step compiles the warp kernels (cached on disk afterwards)
     setup_s = time.perf_counter() - t0
     td = env.reset()
@@ -64,7 +50,7 @@ def run(argv: list[str] | None = None) -> dict:
                               break_when_any_done=False)
     wall = time.perf_counter() - t1
     last = rollout[:, -1]["next"]
-    err = (last["object", "q"] - last["desired_goal"]).abs()
+    err = (last["achieved_goal"] - last["task", "goal"]).norm(dim=-1)
     summary = {
         "task": args.task,
         "num_envs": args.num_envs,

@@ -1,6 +1,6 @@
 """Data-parallel training with ``torchrun``: each process owns its worlds, gradients are all-reduced.
 
-Started by ``torchrun --nproc_per_node P -m dexmots_rl.trainers.train ...`` (``WORLD_SIZE`` > 1), this
+Started by ``torchrun --nproc_per_node P -m dexmots_rl.apps.train ...`` (``WORLD_SIZE`` > 1), this
 joins the process group (gloo on CPU, nccl on CUDA). Every rank steps its own ``task.num_envs`` worlds
 with its own seed; the actor and critic gradients are averaged (``all_reduce``) before each optimiser
 step and the observation statistics are merged, so parameters stay identical on all ranks. Rank 0

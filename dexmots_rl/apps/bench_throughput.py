@@ -97,7 +97,7 @@ class SimBench:
 
         traj = Trajectory(self.sim)
         c = self.control
-        traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.params, self.sim._zeros(self.sim.num_worlds, 6)])
+        traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.sim.pack_params(self.params), self.sim._zeros(self.sim.num_worlds, 6)])
         grads = [torch.ones_like(t) for t in traj.outputs()]
         def one_step(fn):
             def chunk() -> int:

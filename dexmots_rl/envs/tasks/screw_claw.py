@@ -4,7 +4,7 @@ Per episode: the goal angle is drawn with magnitude in [pi/4, pi/2] and a random
 joint damping and Coulomb friction are drawn from ``damping_range`` / ``friction_range`` (the paper's
 "object joint friction is unknown and randomized per episode"). The hand starts open (proximal joints
 spread by ``open_angle``) with a little joint noise, or with ``initial="grasp"`` from a pre-sampled grasp
-(the paper initialises its claw policies from one): distal links resting on the knob. Success: ``|theta - theta_goal| < success_threshold``
+(the paper initialises its claw policies from one, and so does the default): distal links resting on the knob. Success: ``|theta - theta_goal| < success_threshold``
 (0.1 rad); evaluation reads it at the last step of the episode.
 
 Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
@@ -25,7 +25,7 @@ distal-weighted joint weights (stiffness actions of ``"vi"`` are not penalised).
 
 Example:
     >>> from dexmots_rl.envs import make_env
-    >>> env = make_env("screw_claw", num_envs=2, seed=0)
+    >>> env = make_env("screw_claw", num_envs=2, seed=0)  # the trained task: vi actions, pose+wrench goals
     >>> td = env.rollout(3)
     >>> td["next", "reward"].shape, td["next", "reward_terms", "pose"].shape
     (torch.Size([2, 3, 1]), torch.Size([2, 3, 1]))
@@ -33,16 +33,17 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
 from tensordict import TensorDict
 
-from ..assets import asset_path
-from ..sim import load_scene
-from .base import DexEnv
-from .references import lookup
-from .rewards import (
+from ..base import DexEnv
+from ..config import BenchPoses, PlanProblem, TaskConfig, check_range
+from ..references import lookup
+from ..registry import register_task
+from ..rewards import (
     RewardCoefficients,
     action_penalty,
     angle_tracking_reward,
@@ -50,65 +51,95 @@ from .rewards import (
     fingertip_reward,
 )
 
-__all__ = ["ScrewClawEnv"]
+__all__ = ["ScrewClawConfig", "ScrewClawEnv", "scripted_claw_action"]
 
 REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is computed for
 KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
 # hand joints (right prox, right distal, left prox, left distal); "open" uses open_angle
 # "grasp": the distal links resting on the knob (~6 N of contact at rest). The first grasp, distal joints at
 # -+0.6, overlapped the knob by centimetres: the first step kicked it with ~490 N and policies learnt to
-# flick the knob with that kick and coast (README, session 5).
+# flick the knob with that kick and coast (docs/devnotes.md, session 5).
 INITIAL_POSES = {"open": None, "grasp": (0.5, -0.42, -0.5, 0.42)}
+
+
+@dataclasses.dataclass
+class ScrewClawConfig(TaskConfig):
+    """screw_claw's defaults: the task dexmots-train trains (see the module docstring)."""
+
+    name: str = "screw_claw"
+    initial: str = "grasp"  # open (fingers spread) | grasp (resting on the knob, as the paper starts)
+    goal_range: tuple[float, float] = (math.pi / 4, math.pi / 2)  # |goal angle| (rad), random sign
+    damping_range: tuple[float, float] = (0.3, 0.7)  # knob joint damping (N m s/rad), drawn per episode
+    friction_range: tuple[float, float] = (0.2, 1.0)  # knob joint Coulomb friction (N m), drawn per episode
+    open_angle: float = math.radians(60.0)  # rad: proximal spread of the "open" start
+    joint_noise: float = 0.05  # rad: uniform noise on the start pose
+    success_threshold: float = 0.1  # rad: |theta - goal| at the episode end (the paper's epsilon_task)
+    ramp_steps: int = 25  # analytic reference: the angle ramps to the goal over this many steps
+    pose_scale: float = 0.5  # rad: r_pose = exp(-|theta - ref| / pose_scale)
+    torque_scale: float = 5.0  # N m: r_wrench = exp(-|tau - ref| / torque_scale); 1 N m made policies let go
+    reference_torque: str = "nominal"  # nominal | episode: the reference torque for the MJCF's knob or this one
+    # lambda_f 0.1 let the fingers flick the knob and let go (36 % success); 1.0 keeps them on it
+    reward: RewardCoefficients = dataclasses.field(
+        default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=1.0))
+
+    def validate(self) -> "ScrewClawConfig":
+        super().validate()
+        self.goal_range = check_range("task.goal_range", self.goal_range)
+        self.damping_range = check_range("task.damping_range", self.damping_range)
+        self.friction_range = check_range("task.friction_range", self.friction_range)
+        if self.initial not in INITIAL_POSES:
+            raise ValueError(f"task.initial must be one of {', '.join(INITIAL_POSES)}, got {self.initial!r}")
+        if self.ramp_steps < 1:
+            raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
+        if self.reference_torque not in REFERENCE_TORQUES:
+            raise ValueError(f"task.reference_torque must be one of {', '.join(REFERENCE_TORQUES)}, "
+                             f"got {self.reference_torque!r}")
+        for name in ("pose_scale", "torque_scale", "success_threshold"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"task.{name} must be > 0, got {getattr(self, name)!r}")
+        if not self.joint_noise >= 0:
+            raise ValueError(f"task.joint_noise must be >= 0, got {self.joint_noise!r}")
+        return self
+
+
+def scripted_claw_action(desired_goal: torch.Tensor, squeeze: float = 0.6, twist: float = 0.4) -> torch.Tensor:
+    """Close both fingers on the knob and push them tangentially in the goal's direction.
+
+    Joint order: right proximal, right distal, left proximal, left distal (torque actions in [-1, 1]).
+    Closing is negative on the right finger and positive on the left; a common-mode offset on the
+    proximal joints slides both fingertips the same way around the knob.
+    """
+    goal_sign = torch.sign(desired_goal)
+    close = torch.tensor([-squeeze, -squeeze, squeeze, squeeze], dtype=goal_sign.dtype)
+    twist_dir = torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=goal_sign.dtype)
+    return (close - twist * goal_sign * twist_dir).clamp(-1, 1)
 
 
 class ScrewClawEnv(DexEnv):
     """Claw + knob on a vertical hinge; see the module docstring."""
 
     asset = "claw_screw.xml"
+    config_class = ScrewClawConfig
     reward_terms = ("pose", "wrench", "action", "fingertip")
+    breakdowns = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping")}
+    # joint order: right proximal, right distal, left proximal, left distal, knob angle. Closing is negative
+    # on the right finger and positive on the left (see the MJCF joint ranges).
+    bench = BenchPoses(
+        open_q=(1.047, 0.0, -1.047, 0.0, 0.0),
+        close_action=(-1.0, -0.5, 1.0, 0.5),
+        touch_q=(*INITIAL_POSES["grasp"], 0.0),  # the grasp start: resting on the knob (~6 N)
+        free_q=(1.2, -0.5, -1.2, 0.5, 0.0),
+        squeeze_action=(-0.5, -0.5, 0.5, 0.5),
+    )
+    plan_problem = PlanProblem(start=(0.0,), goal=(math.pi / 2,), steps=60)
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        device="cpu",
-        differentiable: bool = True,
-        action: str = "torque",
-        max_episode_steps: int = 100,
-        seed: int | None = None,
-        goal_range: tuple[float, float] = (math.pi / 4, math.pi / 2),
-        damping_range: tuple[float, float] = (0.3, 0.7),
-        friction_range: tuple[float, float] = (0.2, 1.0),
-        open_angle: float = math.radians(60.0),
-        joint_noise: float = 0.05,
-        success_threshold: float = 0.1,
-        ramp_steps: int = 25,
-        initial: str = "open",
-        reward: RewardCoefficients | dict | None = None,
-        pose_scale: float = 0.5,
-        torque_scale: float = 1.0,
-        reference_torque: str = "nominal",
-        **kwargs,
-    ):
-        if not (len(goal_range) == 2 and 0 <= goal_range[0] <= goal_range[1]):
-            raise ValueError(f"goal_range must be (low, high) with 0 <= low <= high, got {goal_range!r}")
-        if initial not in INITIAL_POSES:
-            raise ValueError(f"initial must be one of {', '.join(INITIAL_POSES)}, got {initial!r}")
-        if ramp_steps < 1:
-            raise ValueError(f"ramp_steps must be >= 1, got {ramp_steps}")
-        if reference_torque not in REFERENCE_TORQUES:
-            raise ValueError(f"reference_torque must be one of {', '.join(REFERENCE_TORQUES)}, got {reference_torque!r}")
-        if not (pose_scale > 0 and torque_scale > 0):
-            raise ValueError(f"pose_scale and torque_scale must be > 0, got {pose_scale}, {torque_scale}")
-        self.goal_range, self.open_angle, self.joint_noise = goal_range, open_angle, joint_noise
-        self.success_threshold, self.ramp_steps = success_threshold, ramp_steps
-        self.coeffs = reward if isinstance(reward, RewardCoefficients) else RewardCoefficients(**(reward or {}))
-        self.pose_scale, self.torque_scale = pose_scale, torque_scale
-        self.reference_torque = reference_torque
-        super().__init__(load_scene(asset_path(self.asset)), num_envs, device=device, differentiable=differentiable,
-                         action=action, max_episode_steps=max_episode_steps, seed=seed, damping_range=damping_range,
-                         friction_range=friction_range, **kwargs)
-        # joint order in the MJCF: right proximal, right distal, left proximal, left distal
-        start = [open_angle, 0.0, -open_angle, 0.0] if initial == "open" else INITIAL_POSES["grasp"]
+    def __init__(self, config: ScrewClawConfig | None = None, **kwargs):
+        config = ScrewClawConfig() if config is None else config
+        super().__init__(config, **kwargs)
+        c = self.config
+        self.goal_range, self.success_threshold, self.ramp_steps = c.goal_range, c.success_threshold, c.ramp_steps
+        self.coeffs, self.pose_scale, self.torque_scale = c.reward, c.pose_scale, c.torque_scale
+        start = ([c.open_angle, 0.0, -c.open_angle, 0.0] if c.initial == "open" else INITIAL_POSES["grasp"])
         self._open_pose = torch.tensor(start, dtype=self.dtype, device=self.device)
         scene = self.sim.scene
 
@@ -121,10 +152,17 @@ class ScrewClawEnv(DexEnv):
         self._nominal = (scene.object_damping, scene.object_friction)
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
                                                 device=self.device)
-        self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if action == "vi" else weights
+        self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
+
+    def _param_ranges(self) -> dict:
+        return {"joint_damping": self.config.damping_range, "joint_friction": self.config.friction_range}
+
+    def scripted_action(self, td) -> torch.Tensor:
+        """A torque-space grasp-and-twist controller (no learning): the smoke job's and the plots'."""
+        return scripted_claw_action(td.get(("task", "goal")))
 
     def sample_initial(self, n: int) -> dict:
-        noise = self.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
+        noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
         hand = torch.minimum(torch.maximum(self._open_pose + noise, self._lower), self._upper)
         q = torch.cat([hand, torch.zeros(n, 1, dtype=self.dtype, device=self.device)], -1)
         sign = torch.where(self._rand(n, 1) < 0.5, -1.0, 1.0).to(self.dtype)
@@ -149,9 +187,9 @@ class ScrewClawEnv(DexEnv):
         speed = goal.unsqueeze(1) / (self.ramp_steps * self.sim.dt)
         moving = ((steps >= 1) & (steps <= self.ramp_steps)).unsqueeze(-1)
         damping, friction = self._nominal
-        if self.reference_torque == "episode":
-            params = td[("sim", "params")].to(self.dtype)  # [N, 2]: the episode's damping, friction
-            damping, friction = params[:, None, 0:1], params[:, None, 1:2]
+        if self.config.reference_torque == "episode":
+            damping = td[("sim", "params", "joint_damping")].to(self.dtype)[:, None]  # [N, 1, 1]
+            friction = td[("sim", "params", "joint_friction")].to(self.dtype)[:, None]
         torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
         half = 0.5 * angle
         quat = torch.cat([torch.cos(half), torch.sin(half) * self._axis], -1)
@@ -180,3 +218,6 @@ class ScrewClawEnv(DexEnv):
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         return (obs[("object", "q")] - goal).abs() < self.success_threshold
+
+
+register_task("screw_claw", ScrewClawEnv, ScrewClawConfig)

@@ -8,7 +8,7 @@
 Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),
 ``out`` (run.mcap), ``num_envs`` (4), ``steps`` (100; with a checkpoint, the task's episode length),
 ``seed`` (0), ``device`` (cpu), ``policy`` (``scripted`` — the grasp-and-twist controller of
-:mod:`.rollout`, screw_claw only — or ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
+the task's, in torque space — or ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
 or run directory: its task config builds the env and its actor acts deterministically) and ``live``
 (rewrite the file after every episode). Every episode is a reset followed by ``steps`` steps in every
 world; the summary is printed as one JSON line.
@@ -30,11 +30,9 @@ import sys
 from pathlib import Path
 
 import torch
-from tensordict.nn import TensorDictModule
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ..envs import make_env
-from .rollout import scripted_claw_action
+from ..envs import ScriptedPolicy, make_env
 
 __all__ = ["DEFAULTS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
 
@@ -73,33 +71,33 @@ def parse_overrides(tokens: list[str]) -> dict:
 
 def _load_checkpoint_module():
     try:
-        from . import checkpoint, evaluate
+        from ..algorithms import checkpoint, evaluation
     except ImportError as exc:  # the training stack is not there (or broken): say so, not a bare traceback
-        raise RuntimeError(f"loading a checkpoint needs dexmots_rl.trainers.checkpoint and .evaluate ({exc})") from exc
-    return checkpoint, evaluate
+        raise RuntimeError(f"loading a checkpoint needs dexmots_rl.algorithms ({exc})") from exc
+    return checkpoint, evaluation
 
 
 def env_from_checkpoint(path: str | Path, num_envs: int, seed: int = 0, device="cpu", steps: int | None = None):
     """``(env, checkpoint dict)``: a non-differentiable env built from the checkpoint's task config."""
-    checkpoint, evaluate = _load_checkpoint_module()
+    checkpoint, evaluation = _load_checkpoint_module()
     path = Path(path)
     data = checkpoint.load_checkpoint(checkpoint.latest_checkpoint(path) if path.is_dir() else path)
     task_cfg = dict(data["config"]["task"])
     if steps is not None:
         task_cfg["max_episode_steps"] = steps
-    return evaluate.make_task_env(task_cfg, num_envs, differentiable=False, seed=seed, device=device), data
+    return evaluation.make_env(task_cfg, num_envs=num_envs, differentiable=False, seed=seed, device=device), data
 
 
 def policy_from_checkpoint(path: str | Path, env):
     """Hook: the actor saved in a ``dexmots-train`` checkpoint (file or run directory), ready to act in ``env``.
 
-    Imports :mod:`dexmots_rl.trainers.checkpoint` / ``.evaluate`` lazily (a clear ``RuntimeError`` if they
+    Imports :mod:`dexmots_rl.algorithms` lazily (a clear ``RuntimeError`` if they
     are missing). Run it under ``set_exploration_type(DETERMINISTIC)`` for the mean action. Raises
     ``ValueError`` when the actor does not fit ``env``'s observation (build ``env`` with
     :func:`env_from_checkpoint`).
     """
-    _, evaluate = _load_checkpoint_module()
-    actor, _ = evaluate.policy_from_checkpoint(path, device=env.device)
+    _, evaluation = _load_checkpoint_module()
+    actor, _ = evaluation.policy_from_checkpoint(path, device=env.device)
     try:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             actor(env.reset())
@@ -114,9 +112,7 @@ def _policy(opts: dict, env):
         return policy_from_checkpoint(opts["checkpoint"], env)
     if opts["policy"] == "random":
         return None
-    if opts["task"] != "screw_claw":
-        raise ValueError(f"policy=scripted exists for screw_claw only; use policy=random for {opts['task']!r}")
-    return TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
+    return ScriptedPolicy(env.base_env)
 
 
 def run(argv: list[str] | None = None) -> dict:
@@ -129,8 +125,10 @@ def run(argv: list[str] | None = None) -> dict:
                                         opts["steps"])
         opts["task"] = data.get("task", opts["task"])
     else:
+        # the scripted controller acts in torque space; a random policy explores the task's own actions
+        action = {"action": "torque"} if opts["policy"] == "scripted" else {}
         env = make_env(opts["task"], num_envs=opts["num_envs"], device=opts["device"], differentiable=False,
-                       seed=opts["seed"], max_episode_steps=opts["steps"] or 100)
+                       seed=opts["seed"], **({"max_episode_steps": opts["steps"]} if opts["steps"] else {}), **action)
     steps = opts["steps"] or env.base_env.max_episode_steps
     policy = _policy(opts, env)
     rewards, successes = [], []

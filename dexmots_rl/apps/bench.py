@@ -7,7 +7,7 @@
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput` and :mod:`.bench_grad`; ``benchmarks/*.py`` are thin runnable wrappers.
+:mod:`.bench_throughput` and :mod:`.bench_grad`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import logging
 import statistics
 import sys
 
-from .bench_setup import BENCH_TASKS
+from .bench_setup import bench_tasks
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
 
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="bench", required=True)
 
     def common(p):
-        p.add_argument("--task", default="screw_claw", choices=sorted(BENCH_TASKS))
+        p.add_argument("--task", default="screw_claw", choices=bench_tasks())
         p.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
         p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
         p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
@@ -152,7 +152,7 @@ def _train_bench(args: argparse.Namespace) -> dict:
 def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict:
     from hydra import compose, initialize_config_dir
 
-    from .train import CONFIG_DIR, train
+    from .train import CONFIG_DIR, run as train
 
     run_dir = run_dir or f"runs/bench_{args.task}_{args.algo}_seed{seed}"
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):

@@ -35,7 +35,7 @@ import torch
 
 from .bench_setup import bench_task, load_task_scene
 
-__all__ = ["GOAL_ANGLE", "NOISE", "claw_loss_rollout", "grad_row", "run_grad"]
+__all__ = ["GOAL_ANGLE", "NOISE", "hinge_loss_rollout", "grad_row", "run_grad"]
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +45,9 @@ LOSSES = ("pose", "velocity")
 NOISE = 0.2  # amplitude of the uniform action noise
 
 
-def claw_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float, kind: str = "pose"):
-    """Roll ``actions`` [H, W, nu] out from ``q0`` [W, nq]; returns (loss [W], contact_force [H, W])."""
+def hinge_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float, kind: str = "pose"):
+    """Roll ``actions`` [H, W, nu] out from ``q0`` [W, nq] of a scene whose object is on one hinge (its
+    angle is ``q[:, nu]``); returns (loss [W], contact_force [H, W])."""
     from ..sim import Control
 
     opts = dict(dtype=sim.dtype, device=sim.torch_device)
@@ -90,7 +91,7 @@ def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: 
     actions = (base[:, None] + delta).reshape(-1, horizon, nu).transpose(0, 1).to(**opts).requires_grad_(True)
     q0 = torch.tensor(task.touch_q if contact else task.free_q, **opts).expand(sim.num_worlds, sim.nq).contiguous()
 
-    loss, forces = claw_loss_rollout(sim, q0, actions, GOAL_ANGLE, loss_kind)
+    loss, forces = hinge_loss_rollout(sim, q0, actions, GOAL_ANGLE, loss_kind)
     loss.view(draws, per_draw)[:, 0].sum().backward()  # worlds are independent: one backward for all draws
     ad_full = actions.grad.detach().cpu().view(horizon, draws, per_draw, nu)[:, :, 0].transpose(0, 1)  # [D, H, nu]
     loss = loss.detach().cpu().view(draws, per_draw)

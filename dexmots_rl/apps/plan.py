@@ -14,19 +14,15 @@ import argparse
 import contextlib
 import json
 import logging
-import math
 import sys
 import time
 from pathlib import Path
 
 import torch
 
-__all__ = ["build_parser", "main", "run_plan_bench", "PLAN_GOALS"]
+__all__ = ["build_parser", "main", "run_plan_bench"]
 
 log = logging.getLogger(__name__)
-
-# the benchmark's default problem per task: start, goal, steps (env steps at 60 Hz)
-PLAN_GOALS = {"screw_claw": (0.0, math.pi / 2, 60)}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,19 +53,19 @@ def _plan_inputs(args, scene):
     for name, t in (("goal", goal), ("start", start), ("damping", damping), ("friction", friction)):
         if t.shape[0] not in (1, n):
             raise SystemExit(f"dexmots-plan: --{name} gives {t.shape[0]} values; expected 1 or {n}")
-    params = torch.stack([damping.expand(n), friction.expand(n)], -1)
+    params = {"joint_damping": damping.expand(n), "joint_friction": friction.expand(n)}
     return start.expand(n, nq), goal.expand(n, nq), params
 
 
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+    from ..envs import task_scene
     from ..trajectories import optimize_wrenches
-    from ..trajectories.planner import _scene_of
 
     with contextlib.redirect_stdout(sys.stderr):  # warp prints compile messages
         try:
-            scene = _scene_of(args.task)
+            scene = task_scene(args.task)
         except ValueError as e:
             raise SystemExit(f"dexmots-plan: {e}") from None
         start, goal, params = _plan_inputs(args, scene)
@@ -99,14 +95,16 @@ def main(argv: list[str] | None = None) -> None:
 
 def run_plan_bench(task: str, iterations: int) -> dict:
     """``dexmots-bench plan``: the task's default plan from zero wrenches, timed, in one run."""
+    from ..envs import task_entry, task_scene
     from ..trajectories import optimize_wrenches
 
-    if task not in PLAN_GOALS:
-        raise ValueError(f"no plan benchmark for task {task!r}; known: {', '.join(PLAN_GOALS)}")
-    start, goal, steps = PLAN_GOALS[task]
-    optimize_wrenches(task, start, goal, 1, iterations=1, progress=False)  # compile outside the timing
+    problem = task_entry(task).env_class.plan_problem
+    if problem is None:
+        raise ValueError(f"task {task!r} declares no plan problem (DexEnv.plan_problem)")
+    scene, start, goal, steps = task_scene(task), problem.start, problem.goal, problem.steps
+    optimize_wrenches(scene, start, goal, 1, iterations=1, progress=False)  # compile outside the timing
     t0 = time.perf_counter()
-    result = optimize_wrenches(task, start, goal, steps, iterations=iterations, progress=False)
+    result = optimize_wrenches(scene, start, goal, steps, iterations=iterations, progress=False)
     wall = time.perf_counter() - t0
     return {"task": task, "iterations": iterations, "steps": steps, "initial_error": result.initial_error,
             "final_error": result.final_error, "reduction": result.initial_error / max(result.final_error, 1e-12),

@@ -1,9 +1,9 @@
-"""``dexmots-train``: DexMOTS policy learning with SHAC / AHAC, readable top to bottom.
+"""DexMOTS policy learning with SHAC / AHAC (``dexmots-train algo=shac|ahac``), readable top to bottom.
 
-    dexmots-train                                   # screw_claw, AHAC, configs/ defaults
+    dexmots-train                                   # screw_claw, AHAC: the configs' defaults
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
-    torchrun --nproc_per_node 2 -m dexmots_rl.trainers.train task.num_envs=32   # data parallel
+    torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
 
 One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
 policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
@@ -31,23 +31,23 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
+from ..envs import make_env
 from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .distributed import Distributed
-from .evaluate import evaluate_policy, make_task_env
+from .evaluation import evaluate_policy
 from .networks import make_networks
 
-__all__ = ["CONFIG_DIR", "train", "main"]
+__all__ = ["build", "train"]
 
 log = logging.getLogger(__name__)
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
 
 def build(cfg: DictConfig, rank: int = 0):
     """Env, networks, loss, optimisers and the target updater of a run."""
     torch.manual_seed(cfg.seed + rank)
-    env = make_task_env(cfg.task, cfg.task.num_envs, differentiable=True, seed=cfg.seed + 1000 * rank,
-                        device=cfg.device, adjoint_clip=cfg.algo.get("adjoint_clip"))
+    env = make_env(cfg.task, differentiable=True, seed=cfg.seed + 1000 * rank, device=cfg.device,
+                   adjoint_clip=cfg.algo.get("adjoint_clip"))
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     torch.manual_seed(cfg.seed)  # identical initial networks on every rank
@@ -239,26 +239,3 @@ def _save(run_dir, cfg, counters, modules, optimizers, td, env) -> None:
         "env_state": td.detach().to_dict(),
         "rng": {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
     })
-
-
-def main() -> None:
-    """Console entry point (hydra app over ``configs/``)."""
-    import hydra
-
-    @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
-    def _app(cfg: DictConfig) -> None:
-        logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
-        try:
-            result = train(cfg)
-        except (ValueError, CheckpointError, FileNotFoundError) as e:
-            raise SystemExit(f"dexmots-train: {e}") from None
-        if result:
-            print(json.dumps(result))
-            print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
-                  file=sys.stderr)
-
-    _app()
-
-
-if __name__ == "__main__":
-    main()

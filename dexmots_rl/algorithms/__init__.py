@@ -1,0 +1,11 @@
+"""Training and evaluation: one readable script per method plus the pieces they share.
+
+* :mod:`.shac` — SHAC / AHAC through the differentiable simulator (``dexmots-train algo=shac|ahac``);
+* :mod:`.networks`, :mod:`.checkpoint`, :mod:`.evaluation`, :mod:`.distributed` — shared pieces.
+
+Submodules are imported on use, so importing this package does not load the simulator.
+"""
+
+from __future__ import annotations
+
+__all__ = ["checkpoint", "distributed", "evaluation", "networks", "shac"]

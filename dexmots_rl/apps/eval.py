@@ -1,0 +1,49 @@
+"""``dexmots-eval``: run N episodes of a trained policy deterministically and report success.
+
+    dexmots-eval runs/screw_claw_ahac_seed0                       # its checkpoints/last.pt, 100 episodes
+    dexmots-eval runs/screw_claw_ahac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
+    dexmots-eval runs/screw_claw_ahac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
+
+The episodes are the checkpoint's task (:func:`dexmots_rl.algorithms.evaluation.evaluate_policy`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="dexmots-eval", description=__doc__.splitlines()[0])
+    p.add_argument("checkpoint", help="a checkpoint file or a run directory")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None, help="JSON file (default: <run dir>/eval.json)")
+    p.add_argument("--record", default=None, help="also write the first --record-worlds episodes to this MCAP file")
+    p.add_argument("--record-worlds", type=int, default=8)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+    from ..algorithms.checkpoint import CheckpointError
+    from ..algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+
+    try:
+        actor, data = policy_from_checkpoint(args.checkpoint, args.device)
+        result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
+                  **evaluate_policy(actor, data["config"]["task"], args.episodes, args.seed, args.device,
+                                     record=args.record, record_worlds=args.record_worlds)}
+    except (CheckpointError, ValueError) as e:
+        raise SystemExit(f"dexmots-eval: {e}") from None
+    src = Path(args.checkpoint)
+    out = Path(args.out) if args.out else (src if src.is_dir() else src.parent.parent) / "eval.json"
+    out.write_text(json.dumps(result, indent=2))
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,72 @@
+"""``dexmots-train``: train a policy on a task (hydra app; configs packaged as ``dexmots_rl.configs``).
+
+    dexmots-train                                   # screw_claw, AHAC: the configs' defaults
+    dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
+    dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
+    dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
+    dexmots-train --cfg job                         # print the composed config
+    torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
+
+``task=<name>`` composes the task's typed config (``dexmots_rl.envs.task_config(name)``, registered in
+hydra's ConfigStore): the trainer trains exactly ``make_env(name)``. The method is ``algo=<name>``
+(:mod:`dexmots_rl.algorithms`).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import logging
+import sys
+from pathlib import Path
+
+__all__ = ["CONFIG_DIR", "config_dir", "main"]
+
+
+def config_dir() -> Path:
+    """The hydra config directory: the installed ``dexmots_rl.configs`` package data (a wheel or an
+    editable install maps the repository's ``configs/`` there)."""
+    spec = importlib.util.find_spec("dexmots_rl.configs")
+    if spec is not None and spec.submodule_search_locations:
+        return Path(next(iter(spec.submodule_search_locations)))
+    return Path(__file__).resolve().parents[2] / "configs"  # a source tree on sys.path without an install
+
+
+CONFIG_DIR = config_dir()
+
+
+def run(cfg) -> dict:
+    """Train with the method ``cfg.algo.name`` (after the tasks are registered)."""
+    from ..algorithms import shac
+
+    trainers = {"shac": shac.train, "ahac": shac.train}
+    if cfg.algo.name not in trainers:
+        raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
+    return trainers[cfg.algo.name](cfg)
+
+
+def main() -> None:
+    """Console entry point."""
+    import hydra
+    from omegaconf import DictConfig
+
+    from .. import envs  # noqa: F401  (registers the tasks' configs with hydra)
+    from ..algorithms.checkpoint import CheckpointError
+
+    @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
+    def _app(cfg: DictConfig) -> None:
+        logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+        try:
+            result = run(cfg)
+        except (ValueError, CheckpointError, FileNotFoundError) as e:
+            raise SystemExit(f"dexmots-train: {e}") from None
+        if result:
+            print(json.dumps(result))
+            print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
+                  file=sys.stderr)
+
+    _app()
+
+
+if __name__ == "__main__":
+    main()

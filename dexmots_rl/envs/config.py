@@ -1,0 +1,115 @@
+"""Typed task configs: one dataclass per task is the single source of its defaults.
+
+:class:`TaskConfig` holds the fields every task has; a task module subclasses it with its own fields
+(each with a comment saying what it is). ``make_env(name, **overrides)`` and ``dexmots-train task=name``
+read the same dataclass: the registry stores it in hydra's ConfigStore as the ``task`` group entry, so
+the command line is checked against it too (an unknown key or a wrong type fails naming the key).
+
+:meth:`TaskConfig.validate` checks values and raises ``ValueError`` naming the field; it runs whenever
+an env is built from a config.
+
+Example:
+    >>> from dexmots_rl.envs import task_config
+    >>> cfg = task_config("screw_claw", action="torque")
+    >>> cfg.action, cfg.goal
+    ('torque', 'pose_wrench')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Optional
+
+from .actions import ACTION_TYPES
+from .rewards import RewardCoefficients
+from .transforms import GOAL_MODES
+
+__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_range", "config_from_dict", "override_config"]
+
+
+def check_range(name: str, value, low_bound: float = 0.0) -> tuple[float, float]:
+    """``value`` as a ``(low, high)`` tuple with ``low_bound <= low <= high`` (both finite), or a
+    ``ValueError`` naming ``name``."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (low, high), got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and low_bound <= lo <= hi):
+        raise ValueError(f"{name} must be (low, high) with {low_bound:g} <= low <= high, got {value!r}")
+    return lo, hi
+
+
+@dataclasses.dataclass
+class TaskConfig:
+    """Fields every task has. Subclasses add the task's own and override defaults."""
+
+    name: str = ""  # registry name of the task (set by each task's config)
+    num_envs: int = 64  # worlds dexmots-train simulates (make_env's num_envs argument overrides it)
+    goal: str = "pose_wrench"  # pose | pose_traj | pose_wrench: the goal representation (paper's ablation)
+    goal_horizon: int = 8  # reference steps ahead in the pose_traj / pose_wrench goals
+    action: str = "vi"  # torque | position | vi (variable impedance: PD targets and stiffness per joint)
+    max_episode_steps: int = 100  # env steps per episode (60 Hz control)
+    substeps: int = 16  # physics substeps per env step
+    references: Optional[str] = None  # plan file / directory from dexmots-plan; None: the task's analytic reference
+    reward: RewardCoefficients = dataclasses.field(default_factory=RewardCoefficients)  # paper Eq. 3's λ
+
+    def validate(self) -> "TaskConfig":
+        """Check every field (``ValueError`` naming the first bad one); returns self."""
+        for name in ("num_envs", "goal_horizon", "max_episode_steps", "substeps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"task.{name} must be a positive integer, got {value!r}")
+        if self.goal not in GOAL_MODES:
+            raise ValueError(f"task.goal must be one of {', '.join(GOAL_MODES)}, got {self.goal!r}")
+        if self.action not in ACTION_TYPES:
+            raise ValueError(f"task.action must be one of {', '.join(ACTION_TYPES)}, got {self.action!r}")
+        if not isinstance(self.reward, RewardCoefficients):
+            self.reward = RewardCoefficients(**dict(self.reward))
+        return self
+
+
+def _field_names(cls) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls)]
+
+
+def override_config(cfg: TaskConfig, overrides: dict[str, Any]) -> TaskConfig:
+    """A copy of ``cfg`` with ``overrides`` applied; an unknown field fails naming it and listing the
+    task's fields. ``reward`` may be a dict of coefficients; pairs may be lists."""
+    names = _field_names(type(cfg))
+    unknown = [k for k in overrides if k not in names]
+    if unknown:
+        raise ValueError(f"task {cfg.name!r} has no option {unknown[0]!r}; its options are: {', '.join(names)}")
+    values = dict(overrides)
+    if isinstance(values.get("reward"), dict):
+        values["reward"] = dataclasses.replace(cfg.reward, **values["reward"])
+    for key, value in values.items():
+        if isinstance(value, list):
+            values[key] = tuple(value)
+    return dataclasses.replace(cfg, **values).validate()
+
+
+def config_from_dict(cls, data: dict[str, Any]) -> TaskConfig:
+    """Build a ``cls`` config from a plain dict (e.g. a checkpoint's or hydra's resolved ``task``)."""
+    return override_config(cls(), dict(data))
+
+
+@dataclasses.dataclass(frozen=True)
+class BenchPoses:
+    """A task's poses and actions for the benchmarks (hand dofs then object q, in the MJCF's joint
+    order; actions in [-1, 1] per actuator, torque action space)."""
+
+    open_q: tuple[float, ...]  # hand open, not touching; closing from here makes contact
+    close_action: tuple[float, ...]  # strong closing action used from ``open_q`` (throughput)
+    touch_q: tuple[float, ...]  # fingers already on the object (gradients with contact)
+    free_q: tuple[float, ...]  # fingers far from the object (gradients without contact)
+    squeeze_action: tuple[float, ...]  # moderate closing action that keeps ``touch_q`` in contact
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanProblem:
+    """A task's default wrench-planning problem (``dexmots-bench plan``): object start, goal, env steps."""
+
+    start: tuple[float, ...]
+    goal: tuple[float, ...]
+    steps: int
