@@ -37,9 +37,10 @@ ASSET = Path(__file__).resolve().parents[1] / "dexmots_rl" / "assets" / "allegro
 GRASP_Q = (-0.102, 0.58, 0.67, 0.639, 0.0, 0.494, 0.604, 0.598,
            0.102, 0.58, 0.67, 0.639, 0.919, 1.006, 0.662, 0.787)
 TOUCH_Q = GRASP_Q
-# GRASP_Q with the fingers' flexion opened by 0.25 rad and the thumb backed off (j13 + 0.3, j14/j15 - 0.2)
+# GRASP_Q with the fingers' flexion opened by 0.25 rad and the thumb backed off (j13 to 1.15, near its
+# 1.163 limit; j14/j15 - 0.2)
 OPEN_Q = (-0.102, 0.33, 0.42, 0.389, 0.0, 0.244, 0.354, 0.348,
-          0.102, 0.33, 0.42, 0.389, 0.919, 1.306, 0.462, 0.587)
+          0.102, 0.33, 0.42, 0.389, 0.919, 1.15, 0.462, 0.587)
 FREE_Q = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)  # straight fingers, thumb at its lower j12 limit
 # deltas on the targets: squeeze = flex j1-j3 of each finger, thumb j13 toward the knob;
 # twist = abduct the fingers (j0, j4, j8: tips to +y) and swing the thumb (j12: tip to -y): +z on the knob
@@ -200,7 +201,10 @@ def main() -> None:
     d.qpos[:16], d.qpos[16] = qr, 0.0
     mujoco.mj_forward(m, d)
     full = np.zeros((m.nv, m.nv))
-    mujoco.mj_fullM(m, full, d.qM)
+    try:  # MuJoCo >= 3.3: mj_fullM(m, d, dst); before: mj_fullM(m, dst, d.qM)
+        mujoco.mj_fullM(m, d, full)
+    except TypeError:
+        mujoco.mj_fullM(m, full, d.qM)
     Mh = full[:16, :16]
     Ms = scene_mass_matrix(s, qr)
     report["mass_matrix"] = {"q": np.round(qr, 3).tolist(),

@@ -30,6 +30,15 @@ def batch_state(sim: Simulator, q, qd=None):
     return q, qd
 
 
+def claw_params(values: torch.Tensor) -> dict:
+    """The knob's named parameters from a ``[N, 2]`` (or ``[2]``) tensor of (damping, friction); the
+    spring is off. Differentiable in ``values``."""
+    values = values.reshape(-1, 2)
+    zero = torch.zeros_like(values[:, :1])
+    return {"joint_damping": values[:, 0:1], "joint_friction": values[:, 1:2], "joint_stiffness": zero,
+            "joint_rest": zero}
+
+
 def torque(tau: torch.Tensor) -> Control:
     """Pure torque control (no PD terms)."""
     z = torch.zeros_like(tau)

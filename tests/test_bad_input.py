@@ -13,12 +13,12 @@ N = 3
 
 @pytest.fixture(scope="module")
 def env():
-    return make_env("screw_claw", num_envs=N, differentiable=False, seed=0)
+    return make_env("screw_claw", num_envs=N, differentiable=False, seed=0, action="torque", goal="pose", initial="open")
 
 
 @pytest.fixture(scope="module")
 def raw_env():
-    return make_env("screw_claw", num_envs=N, differentiable=False, seed=0, raw=True)
+    return make_env("screw_claw", num_envs=N, differentiable=False, seed=0, raw=True, action="torque", goal="pose", initial="open")
 
 
 def test_unknown_task_lists_known_tasks():
@@ -30,12 +30,12 @@ def test_unknown_task_lists_known_tasks():
 @pytest.mark.parametrize("num_envs", [0, -1])
 def test_nonpositive_num_envs(num_envs):
     with pytest.raises(ValueError, match="num_envs"):
-        make_env("screw_claw", num_envs=num_envs)
+        make_env("screw_claw", num_envs=num_envs, action="torque", goal="pose", initial="open")
 
 
 def test_unknown_action_type():
     with pytest.raises(ValueError, match="action") as info:
-        make_env("screw_claw", num_envs=1, action="velocity")
+        make_env("screw_claw", num_envs=1, action="velocity", goal="pose", initial="open")
     assert "velocity" in str(info.value) and "torque" in str(info.value)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from simutil import CHAIN3D, CLAW, CLAW_CONTACT_Q, CLAW_OPEN_Q, batch_state, mujoco_forward, mujoco_model, torque
+from simutil import CHAIN3D, CLAW, CLAW_CONTACT_Q, CLAW_OPEN_Q, batch_state, claw_params, mujoco_forward, mujoco_model, torque
 
 # (seed, moving): random states with q in +-0.08 (inside the slide joint's +-0.1 range) and qd in +-2
 ORACLE_STATES = [(0, False), (1, False), (2, True), (3, True), (4, True)]
@@ -118,7 +118,7 @@ def test_claw_free_acceleration_matches_mujoco(make_claw_sim, claw_mj):
     tau = torch.tensor([[20.0, -10.0, 5.0, 40.0]], dtype=torch.float64)
     params = torch.tensor([[0.5, 0.0]], dtype=torch.float64)
     qt, qdt = batch_state(sim, q, qd)
-    out = sim.step(qt, qdt, torque(tau), params)
+    out = sim.step(qt, qdt, torque(tau), claw_params(params))
     acc = ((out.joint_qd - qdt) / sim.dt)[0].numpy()
     qacc, _, _, _ = mujoco_forward(claw_mj, q, qd, tau[0].numpy())
     # damping is integrated implicitly: (M + dt D) qdd differs from M qdd by ~dt * D / M ~ 1e-7 relative
@@ -254,10 +254,10 @@ def test_worlds_are_independent(make_claw_sim, taped):
     tau = 30 * (2 * torch.rand(n, 4, generator=gen, dtype=torch.float64) - 1)
     params = torch.tensor([[0.5, 0.3]], dtype=torch.float64).expand(n, 2).contiguous()
     big = make_claw_sim(n)
-    out = big.step(q, qd, torque(tau.clone().requires_grad_(taped)), params)
+    out = big.step(q, qd, torque(tau.clone().requires_grad_(taped)), claw_params(params))
     one = make_claw_sim(1)
     for w in [0, 1, 38, 39, 40, 41, 79]:
-        ref = one.step(q[w : w + 1], qd[w : w + 1], torque(tau[w : w + 1]), params[w : w + 1])
+        ref = one.step(q[w : w + 1], qd[w : w + 1], torque(tau[w : w + 1]), claw_params(params[w : w + 1]))
         for name, a, b in zip(out.names, out, ref):
             assert torch.equal(a[w : w + 1].detach(), b), (w, name)
     assert float(out.contact_force[1::2].detach().min()) > 0.0  # the odd worlds are in contact

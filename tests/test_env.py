@@ -22,7 +22,7 @@ N = 3
 
 @pytest.fixture(scope="module")
 def env():
-    return make_env("screw_claw", num_envs=N, device="cpu", differentiable=True, seed=0)
+    return make_env("screw_claw", num_envs=N, device="cpu", differentiable=True, seed=0, action="torque", goal="pose", initial="open")
 
 
 def _policy(obs_dim: int, act_dim: int, seed: int = 0) -> TensorDictModule:
@@ -46,9 +46,9 @@ def _run(env, actions, td=None):
 
 @pytest.mark.parametrize("differentiable", [True, False])
 def test_check_env_specs(differentiable):
-    env = make_env("screw_claw", num_envs=N, differentiable=differentiable, seed=1)
+    env = make_env("screw_claw", num_envs=N, differentiable=differentiable, seed=1, action="torque", goal="pose", initial="open")
     check_env_specs(env, seed=1)
-    raw = make_env("screw_claw", num_envs=N, differentiable=differentiable, seed=1, raw=True)
+    raw = make_env("screw_claw", num_envs=N, differentiable=differentiable, seed=1, raw=True, action="torque", goal="pose", initial="open")
     check_env_specs(raw, seed=1)
 
 
@@ -56,7 +56,8 @@ def test_observation_and_state_keys(env):
     td = env.reset()
     assert td["observation"].shape == (N, 18)
     assert td["sim", "joint_q"].shape == (N, 5) and td["sim", "joint_qd"].shape == (N, 5)
-    assert td["sim", "params"].shape == (N, 2)
+    assert set(td["sim", "params"].keys()) == {"joint_damping", "joint_friction", "joint_stiffness", "joint_rest"}
+    assert td["sim", "params", "joint_friction"].shape == (N, 1)
     assert td["fingertips", "pos"].shape == (N, 2, 3)
     assert td["object", "pose"].shape == (N, 7)
     torch.testing.assert_close(td["hand", "q"], td["sim", "joint_q"][:, :4], rtol=0, atol=0)
@@ -88,7 +89,7 @@ def test_gradients_flow_through_rollout_to_policy(env):
 
 
 def test_non_differentiable_env_builds_no_graph():
-    env = make_env("screw_claw", num_envs=N, differentiable=False, seed=0)
+    env = make_env("screw_claw", num_envs=N, differentiable=False, seed=0, action="torque", goal="pose", initial="open")
     policy = _policy(env.observation_spec["observation"].shape[-1], 4)
     rollout = env.rollout(3, policy, auto_reset=True, break_when_any_done=False)
     assert rollout["action"].requires_grad  # the policy output itself is in a graph ...
@@ -98,27 +99,27 @@ def test_non_differentiable_env_builds_no_graph():
 
 def test_same_seed_same_rollout():
     actions = 2 * torch.rand(6, N, 4, generator=torch.Generator().manual_seed(0)) - 1
-    a = make_env("screw_claw", num_envs=N, differentiable=False, seed=3)
-    b = make_env("screw_claw", num_envs=N, differentiable=False, seed=3)
+    a = make_env("screw_claw", num_envs=N, differentiable=False, seed=3, action="torque", goal="pose", initial="open")
+    b = make_env("screw_claw", num_envs=N, differentiable=False, seed=3, action="torque", goal="pose", initial="open")
     ra, rb = _run(a, actions), _run(b, actions)
     for ta, tb in zip(ra, rb):
-        for key in ["reward", "observation", ("sim", "joint_q"), ("sim", "params"), "desired_goal"]:
+        for key in ["reward", "observation", ("sim", "joint_q"), ("sim", "params", "joint_friction"), "desired_goal"]:
             assert torch.equal(ta[key], tb[key]), key
     # the actions did something (so identical outputs are not trivially identical)
     assert not torch.equal(ra[0]["sim", "joint_q"], ra[-1]["sim", "joint_q"])
 
 
 def test_different_seed_different_goals():
-    a = make_env("screw_claw", num_envs=N, differentiable=False, seed=3).reset()
-    b = make_env("screw_claw", num_envs=N, differentiable=False, seed=4).reset()
+    a = make_env("screw_claw", num_envs=N, differentiable=False, seed=3, action="torque", goal="pose", initial="open").reset()
+    b = make_env("screw_claw", num_envs=N, differentiable=False, seed=4, action="torque", goal="pose", initial="open").reset()
     assert not torch.equal(a["desired_goal"], b["desired_goal"])
-    assert not torch.equal(a["sim", "params"], b["sim", "params"])
+    assert not torch.equal(a["sim", "params", "joint_friction"], b["sim", "params", "joint_friction"])
     assert not torch.equal(a["sim", "joint_q"], b["sim", "joint_q"])
 
 
 def test_partial_reset_keeps_other_worlds():
     n = 4
-    env = make_env("screw_claw", num_envs=n, differentiable=False, seed=5)
+    env = make_env("screw_claw", num_envs=n, differentiable=False, seed=5, action="torque", goal="pose", initial="open")
     actions = 2 * torch.rand(3, n, 4, generator=torch.Generator().manual_seed(1)) - 1
     td = _run(env, actions)[-1]
     td = step_mdp(TensorDict({"next": td}, batch_size=[n]))  # the state after 3 steps, as a root td
@@ -128,7 +129,7 @@ def test_partial_reset_keeps_other_worlds():
     td.set("_reset", mask)
     out = env.reset(td)
     keep, reset = [0, 2], [1, 3]
-    keys = ["observation", ("sim", "joint_q"), ("sim", "joint_qd"), ("sim", "params"), ("hand", "q"),
+    keys = ["observation", ("sim", "joint_q"), ("sim", "joint_qd"), ("sim", "params", "joint_friction"), ("hand", "q"),
             ("object", "q"), ("fingertips", "pos"), "desired_goal", ("task", "step"), ("info", "sim_failures")]
     for key in keys:
         assert torch.equal(out[key][keep], before[key][keep]), key
@@ -140,7 +141,7 @@ def test_partial_reset_keeps_other_worlds():
 
 
 def test_truncation_after_max_episode_steps():
-    env = make_env("screw_claw", num_envs=N, differentiable=False, seed=2, max_episode_steps=5)
+    env = make_env("screw_claw", num_envs=N, differentiable=False, seed=2, max_episode_steps=5, action="torque", goal="pose", initial="open")
     rollout = env.rollout(7, tensordict=env.reset(), auto_reset=False, break_when_any_done=False)
     steps = rollout["next", "task", "step"][..., 0]
     # torchrl resets the truncated worlds between steps 5 and 6 (a partial reset through "_reset")
@@ -156,7 +157,7 @@ def test_truncation_after_max_episode_steps():
 
 
 def test_success_flag_matches_goal_distance():
-    env = make_env("screw_claw", num_envs=4, differentiable=False, seed=6)
+    env = make_env("screw_claw", num_envs=4, differentiable=False, seed=6, action="torque", goal="pose", initial="open")
     td = env.reset()
     # goals near and far from the knob's current angle (0): the env reads the goal from the TensorDict
     td["task", "goal"] = torch.tensor([[0.0], [0.09], [-0.3], [1.0]])
@@ -173,7 +174,7 @@ def test_success_flag_matches_goal_distance():
 
 
 def test_position_actions_track_targets():
-    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=7, action="position")
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=7, action="position", goal="pose", initial="open")
     base = env.base_env
     lower, upper = base.actions.lower, base.actions.upper
     # open-hand targets away from the knob, different per world
@@ -195,7 +196,7 @@ def test_variable_impedance_env_specs_and_gradients():
 
     from dexmots_rl.envs import make_env
 
-    env = make_env("screw_claw", num_envs=2, seed=0, action="vi")
+    env = make_env("screw_claw", num_envs=2, seed=0, action="vi", goal="pose", initial="open")
     assert env.action_spec.shape[-1] == 8  # 4 joint targets + 4 stiffnesses
     check_env_specs(env)
     td = env.reset()

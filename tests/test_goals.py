@@ -18,7 +18,7 @@ N, H = 3, 4
 
 @pytest.mark.parametrize("goal, width, error_width", [("pose", 1, 1), ("pose_traj", H, H), ("pose_wrench", 2 * H, H)])
 def test_goal_modes_have_documented_shapes_and_pass_spec_checks(goal, width, error_width):
-    env = make_env("screw_claw", num_envs=N, goal=goal, goal_horizon=H, seed=0)
+    env = make_env("screw_claw", num_envs=N, goal=goal, goal_horizon=H, seed=0, action="torque", initial="open")
     check_env_specs(env, seed=0)
     td = env.reset()
     assert td["desired_goal"].shape == (N, width)
@@ -28,7 +28,7 @@ def test_goal_modes_have_documented_shapes_and_pass_spec_checks(goal, width, err
 
 
 def test_pose_traj_goal_is_the_reference_window_from_the_step_counter():
-    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=1)
+    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=1, action="torque", initial="open")
     base = env.base_env
     td = env.rollout(3)
     nxt = td["next"][:, -1]
@@ -48,16 +48,17 @@ def test_pose_traj_goal_is_the_reference_window_from_the_step_counter():
 
 
 def test_episode_reference_torque_uses_each_worlds_drawn_knob():
-    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=1, reference_torque="episode")
+    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=1, reference_torque="episode", action="torque", initial="open")
     base = env.base_env
     nxt = env.rollout(2)["next"][:, -1]
-    damping, friction = nxt["sim", "params"].unbind(-1)
+    damping = nxt["sim", "params", "joint_damping"].squeeze(-1)
+    friction = nxt["sim", "params", "joint_friction"].squeeze(-1)
     assert damping.unique().numel() == N and friction.unique().numel() == N  # drawn per world
     speed = nxt["task", "goal"] / (base.ramp_steps * base.sim.dt)
     torque = damping[:, None] * speed + friction[:, None] * torch.tanh(speed / 0.05)
     torch.testing.assert_close(nxt["desired_goal"].view(N, H, 2)[..., 1], torque.expand(N, H))
     with pytest.raises(ValueError, match="reference_torque"):
-        make_env("screw_claw", num_envs=1, reference_torque="measured")
+        make_env("screw_claw", num_envs=1, reference_torque="measured", action="torque", goal="pose", initial="open")
 
 
 def test_free_body_goal_error_is_position_difference_and_relative_rotation():
@@ -75,7 +76,7 @@ def test_free_body_goal_error_is_position_difference_and_relative_rotation():
 
 def test_reward_terms_match_hand_computed_values():
     env = make_env("screw_claw", num_envs=N, seed=2, reward={"lambda_pose": 1.0, "lambda_wrench": 0.5,
-                                                             "lambda_act": 0.1, "lambda_f": 0.2})
+                                                             "lambda_act": 0.1, "lambda_f": 0.2}, action="torque", goal="pose", initial="open")
     td = env.reset()
     td["action"] = torch.tensor([[0.5, -0.5, 0.2, 0.1]]).expand(N, 4)
     nxt = env.step(td)["next"]
@@ -94,7 +95,7 @@ def test_reward_terms_match_hand_computed_values():
 
 
 def test_pose_wrench_rollout_keeps_gradients_to_the_policy():
-    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=3)
+    env = make_env("screw_claw", num_envs=N, goal="pose_wrench", goal_horizon=H, seed=3, action="torque", initial="open")
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Linear(env.observation_spec["observation"].shape[-1], 4), torch.nn.Tanh())
     policy = TensorDictModule(net, in_keys=["observation"], out_keys=["action"])
@@ -118,7 +119,7 @@ def _plan(final: float, steps: int = 5) -> PoseWrenchTrajectory:
 
 def test_reference_bank_picks_a_plan_per_world():
     plans = [_plan(0.8), _plan(-1.2, steps=3)]
-    env = make_env("screw_claw", num_envs=8, goal="pose_wrench", goal_horizon=2, seed=4, references=plans)
+    env = make_env("screw_claw", num_envs=8, goal="pose_wrench", goal_horizon=2, seed=4, references=plans, action="torque", initial="open")
     td = env.reset()
     index = td["task", "ref_index"].squeeze(-1)
     assert set(index.tolist()) == {0, 1}
@@ -136,9 +137,10 @@ def test_randomisation_is_seeded_and_within_ranges():
     a = make_env("screw_claw", seed=5, **kw).reset()["sim", "params"]
     b = make_env("screw_claw", seed=5, **kw).reset()["sim", "params"]
     c = make_env("screw_claw", seed=6, **kw).reset()["sim", "params"]
-    assert torch.equal(a, b) and not torch.equal(a, c)
-    assert ((a[:, 0] >= 0.1) & (a[:, 0] <= 0.2)).all() and ((a[:, 1] >= 0.3) & (a[:, 1] <= 0.9)).all()
-    assert a[:, 1].std() > 0.05
+    assert (a == b).all() and not (a == c).all()
+    damping, friction = a["joint_damping"], a["joint_friction"]
+    assert ((damping >= 0.1) & (damping <= 0.2)).all() and ((friction >= 0.3) & (friction <= 0.9)).all()
+    assert friction.std() > 0.05
 
 
 @pytest.mark.parametrize("kwargs, field", [
@@ -156,6 +158,6 @@ def test_bad_goal_options_name_the_field(kwargs, field):
 
 
 def test_goal_magnitudes_unchanged_by_transforms():
-    td = make_env("screw_claw", num_envs=32, seed=7, goal="pose_traj", goal_horizon=2).reset()
+    td = make_env("screw_claw", num_envs=32, seed=7, goal="pose_traj", goal_horizon=2, action="torque", initial="open").reset()
     goal = td["task", "goal"].abs()
     assert ((goal >= math.pi / 4 - 1e-6) & (goal <= math.pi / 2 + 1e-6)).all()

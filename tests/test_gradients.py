@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from simutil import CLAW_CONTACT_Q, CLAW_OPEN_Q, batch_state, torque
+from simutil import CLAW_CONTACT_Q, CLAW_OPEN_Q, batch_state, claw_params, torque
 
 H = 4
 EPS = 1e-6
@@ -41,7 +41,7 @@ def _rollout_loss(sim, q, qd, params, tau, weights):
     """Per-world loss [N]; q, qd: [N, 5], params [N, 2], tau [N, H, 4]."""
     loss = torch.zeros(q.shape[0], dtype=torch.float64)
     for t in range(H):
-        out = sim.step(q, qd, torque(tau[:, t]), params)
+        out = sim.step(q, qd, torque(tau[:, t]), claw_params(params))
         q, qd = out.joint_q, out.joint_qd
         wq, wqd, ww, wc, wtip = weights[t]
         loss = loss + (q * wq).sum(-1) + 0.1 * (qd * wqd).sum(-1) + 0.01 * (out.wrench * ww).sum(-1)
@@ -83,7 +83,7 @@ def ad_and_fd(request, make_claw_sim):
         sim_q, sim_qd, sim_p, sim_tau = _unflatten(base[None])
         cforce = 0.0
         for t in range(H):
-            out = sim1.step(sim_q, sim_qd, torque(sim_tau[:, t]), sim_p)
+            out = sim1.step(sim_q, sim_qd, torque(sim_tau[:, t]), claw_params(sim_p))
             sim_q, sim_qd = out.joint_q, out.joint_qd
             cforce = max(cforce, float(out.contact_force.max()))
     return request.param, grad_ad[0], grad_fd, cforce

@@ -68,8 +68,8 @@ def test_slerp_and_reference_interpolation():
 
 
 def test_optimize_wrenches_turns_the_knob_with_friction():
-    params = torch.tensor([[0.5, 0.8]])
-    plan = optimize_wrenches("screw_claw", start=0.0, goal=0.6, steps=8, iterations=60, lr=1.0, params=params,
+    params = {"joint_damping": 0.5, "joint_friction": 0.8}
+    plan = optimize_wrenches(CLAW, start=0.0, goal=0.6, steps=8, iterations=60, lr=1.0, params=params,
                              substeps=4, dt=0.05, progress=False)
     assert plan.initial_error / plan.final_error > 5.0
     assert plan.loss_history[-1] < plan.loss_history[0]
@@ -96,9 +96,11 @@ def test_optimize_wrenches_moves_a_free_body():
 
 
 def test_optimize_wrenches_rejects_bad_input():
-    with pytest.raises(ValueError, match="task"):
-        optimize_wrenches("no_such_task", 0.0, 1.0, 4, progress=False)
+    with pytest.raises(ValueError, match="scene"):
+        optimize_wrenches("screw_claw", 0.0, 1.0, 4, progress=False)  # a task name: the planner takes a scene
     with pytest.raises(ValueError, match="goal"):
-        optimize_wrenches("screw_claw", 0.0, float("nan"), 4, progress=False)
+        optimize_wrenches(CLAW, 0.0, float("nan"), 4, progress=False)
     with pytest.raises(ValueError, match="steps"):
-        optimize_wrenches("screw_claw", 0.0, 1.0, 0, progress=False)
+        optimize_wrenches(CLAW, 0.0, 1.0, 0, progress=False)
+    with pytest.raises(ValueError, match="joint_dampnig"):
+        optimize_wrenches(CLAW, 0.0, 1.0, 4, params={"joint_dampnig": 1.0}, progress=False)

@@ -21,7 +21,7 @@ STEPS, WORLDS, EPISODES = 5, 2, 2
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    env = make_env("screw_claw", num_envs=WORLDS, differentiable=False, seed=0, max_episode_steps=STEPS)
+    env = make_env("screw_claw", num_envs=WORLDS, differentiable=False, seed=0, max_episode_steps=STEPS, action="torque", goal="pose", initial="open")
     policy = TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
     path = tmp_path_factory.mktemp("rec") / "run.mcap"
     rollouts = []

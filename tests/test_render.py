@@ -136,7 +136,7 @@ def test_tile_images_places_worlds_row_by_row():
 
 
 def test_rgb_observation_transform_specs_and_rollout():
-    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0)
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, action="torque", goal="pose", initial="open")
     env.append_transform(RGBObservation(height=H, width=W))
     spec = env.observation_spec["pixels"]
     assert spec.shape == (2, H, W, 3) and spec.dtype == torch.uint8
@@ -148,7 +148,7 @@ def test_rgb_observation_transform_specs_and_rollout():
 
 
 def test_make_env_obs_rgb_and_standalone_forward(sim):
-    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, obs="rgb")
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, obs="rgb", action="torque", goal="pose", initial="open")
     td = env.reset()
     assert td["pixels"].shape == (2, 64, 64, 3)
     # outside an env (e.g. relabelling stored states): pass the simulator; leading dims are kept

@@ -22,7 +22,7 @@ STEPS = 8
 
 @pytest.fixture(scope="module")
 def episodes():
-    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, max_episode_steps=STEPS)
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, max_episode_steps=STEPS, action="torque", goal="pose", initial="open")
     policy = TensorDictModule(scripted_claw_action, in_keys=["desired_goal"], out_keys=["action"])
     return env, [env.rollout(STEPS, policy, tensordict=env.reset(), auto_reset=False, break_when_any_done=False)
                  for _ in range(2)]

@@ -42,6 +42,7 @@ class DexEnv(EnvBase):
     # evaluation breakdowns: name -> key of a per-episode value; dexmots-eval reports success by its quartiles
     breakdowns: dict = {}
     bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
+    contact_params = None  # the scene's ContactParams (None: the defaults, sized for the claw)
     plan_problem = None  # PlanProblem for dexmots-bench plan
 
     @classmethod
@@ -73,7 +74,7 @@ class DexEnv(EnvBase):
 
             scene = load_scene(self.asset_path())
         self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
-                             contact=contact, adjoint_clip=adjoint_clip)
+                             contact=self.contact_params if contact is None else contact, adjoint_clip=adjoint_clip)
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
         self.param_ranges = self._param_ranges()

@@ -190,10 +190,12 @@ def action_penalty(action: torch.Tensor, joint_weights: torch.Tensor | None = No
     return -torch.linalg.vector_norm(a, dim=-1, keepdim=True)
 
 
-def fingertip_reward(fingertips: torch.Tensor, object_pos: torch.Tensor) -> torch.Tensor:
-    """Eq. 2's ``r_f = Σ_i exp(-‖x_fi - x_o‖)`` per world, ``[..., 1]`` (in ``(0, F]``).
+def fingertip_reward(fingertips: torch.Tensor, object_pos: torch.Tensor, scale: float = 1.0) -> torch.Tensor:
+    """Eq. 2's ``r_f = Σ_i exp(-‖x_fi - x_o‖ / scale)`` per world, ``[..., 1]`` (in ``(0, F]``).
 
-    ``fingertips``: ``[..., F, 3]`` fingertip positions (m); ``object_pos``: ``[..., 3]`` object centre.
+    ``fingertips``: ``[..., F, 3]`` fingertip positions (m); ``object_pos``: ``[..., 3]`` object centre;
+    ``scale`` (m): the distance over which the term decays (of the order of the hand: 1 m leaves a
+    centimetre-sized hand no gradient to follow).
 
     Example:
         >>> import torch
@@ -205,7 +207,7 @@ def fingertip_reward(fingertips: torch.Tensor, object_pos: torch.Tensor) -> torc
     if fingertips.dim() < 2:
         raise ValueError(f"fingertips must have shape [..., F, 3], got {tuple(fingertips.shape)}")
     dist = torch.linalg.vector_norm(fingertips - object_pos.unsqueeze(-2), dim=-1)
-    return torch.exp(-dist).sum(-1, keepdim=True)
+    return torch.exp(-dist / scale).sum(-1, keepdim=True)
 
 
 @dataclass

@@ -3,6 +3,6 @@ reference, bench poses and scripted controller. Importing this package registers
 
 from __future__ import annotations
 
-from . import screw_claw  # noqa: F401  (registers screw_claw)
+from . import allegro, screw_claw  # noqa: F401  (each registers its tasks)
 
-__all__ = ["screw_claw"]
+__all__ = ["allegro", "screw_claw"]

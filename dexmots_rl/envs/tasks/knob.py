@@ -1,0 +1,170 @@
+"""Turning a knob on a hinge by a goal angle: the config, reference, reward and success every knob task shares.
+
+A task (``screw_claw``, ``allegro_rotate``) subclasses :class:`KnobTurnConfig` and :class:`KnobTurnEnv`
+and adds its hand's start poses (:meth:`KnobTurnEnv.start_pose`), bench poses and MJCF.
+
+Per episode: the goal angle is drawn with magnitude in ``goal_range`` and a random direction; the knob's
+joint damping and Coulomb friction are drawn from ``damping_range`` / ``friction_range`` (the paper's
+"object joint friction is unknown and randomized per episode"). Success: ``|theta - theta_goal| <
+success_threshold``; evaluation reads it at the last step of the episode.
+
+Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
+to the goal over ``ramp_steps`` env steps and then holds; the reference torque about the hinge is the
+one the *nominal* knob (the MJCF's damping and friction, not the episode's randomised ones: the plan
+does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after;
+``reference_torque="episode"`` computes it with the episode's drawn damping and friction instead (the
+policy is told how hard the knob is to turn, while its pose-only goal modes still are not). With
+``references=`` (plans from ``dexmots-plan``) each world follows one planned trajectory instead and its
+goal is that plan's final angle.
+
+Reward (paper Eq. 1–3, terms under ``("reward_terms", name)``):
+``λ_pose exp(-|θ - θ̄_k| / pose_scale) + λ_wrench exp(-|τ - τ̄_k| / torque_scale) - λ_act ‖w ⊙ a‖
++ λ_f Σ_i exp(-‖x_fi - x_o‖ / fingertip_scale)`` with k the step counter, τ the contact torque about the
+hinge axis and w the distal-weighted joint weights (stiffness actions of ``"vi"`` are not penalised).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import torch
+from tensordict import TensorDict
+
+from ..base import DexEnv
+from ..config import TaskConfig, check_range
+from ..references import lookup
+from ..rewards import action_penalty, angle_tracking_reward, distal_weighted_joint_weights, fingertip_reward
+
+__all__ = ["KnobTurnConfig", "KnobTurnEnv", "REFERENCE_TORQUES"]
+
+REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is computed for
+KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
+
+
+@dataclasses.dataclass
+class KnobTurnConfig(TaskConfig):
+    """Fields of every knob-turning task (defaults: the claw's; each task sets its own)."""
+
+    initial: str = "grasp"  # the start pose: one of the task's INITIAL_POSES
+    goal_range: tuple[float, float] = (math.pi / 4, math.pi / 2)  # |goal angle| (rad), random sign
+    damping_range: tuple[float, float] = (0.3, 0.7)  # knob joint damping (N m s/rad), drawn per episode
+    friction_range: tuple[float, float] = (0.2, 1.0)  # knob joint Coulomb friction (N m), drawn per episode
+    joint_noise: float = 0.05  # rad: uniform noise on the start pose
+    success_threshold: float = 0.1  # rad: |theta - goal| at the episode end (the paper's epsilon_task)
+    ramp_steps: int = 25  # analytic reference: the angle ramps to the goal over this many steps
+    pose_scale: float = 0.5  # rad: r_pose = exp(-|theta - ref| / pose_scale)
+    torque_scale: float = 5.0  # N m: r_wrench = exp(-|tau - ref| / torque_scale)
+    fingertip_scale: float = 1.0  # m: r_f = sum_i exp(-|x_fi - x_o| / fingertip_scale)
+    reference_torque: str = "nominal"  # nominal | episode: the reference torque for the MJCF's knob or this one
+
+    def validate(self) -> "KnobTurnConfig":
+        super().validate()
+        self.goal_range = check_range("task.goal_range", self.goal_range)
+        self.damping_range = check_range("task.damping_range", self.damping_range)
+        self.friction_range = check_range("task.friction_range", self.friction_range)
+        if self.ramp_steps < 1:
+            raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
+        if self.reference_torque not in REFERENCE_TORQUES:
+            raise ValueError(f"task.reference_torque must be one of {', '.join(REFERENCE_TORQUES)}, "
+                             f"got {self.reference_torque!r}")
+        for name in ("pose_scale", "torque_scale", "fingertip_scale", "success_threshold"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"task.{name} must be > 0, got {getattr(self, name)!r}")
+        if not self.joint_noise >= 0:
+            raise ValueError(f"task.joint_noise must be >= 0, got {self.joint_noise!r}")
+        return self
+
+
+class KnobTurnEnv(DexEnv):
+    """A hand and a knob on one hinge; subclasses give :meth:`start_pose` and the scene."""
+
+    reward_terms = ("pose", "wrench", "action", "fingertip")
+    breakdowns = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping")}
+
+    def __init__(self, config: KnobTurnConfig, **kwargs):
+        super().__init__(config, **kwargs)
+        c = self.config
+        self.goal_range, self.success_threshold, self.ramp_steps = c.goal_range, c.success_threshold, c.ramp_steps
+        self.coeffs, self.pose_scale, self.torque_scale = c.reward, c.pose_scale, c.torque_scale
+        self._open_pose = torch.as_tensor(self.start_pose(), dtype=self.dtype, device=self.device)
+        scene = self.sim.scene
+
+        def t(x):
+            return torch.as_tensor(x, dtype=self.dtype, device=self.device)
+
+        self._lower, self._upper = t(scene.dof_lower), t(scene.dof_upper)
+        self._axis = t(scene.object_base_rot @ scene.object_axis)
+        self._knob_pos = t(scene.object_base_pos)
+        self._nominal = (scene.object_damping, scene.object_friction)
+        weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
+                                                device=self.device)
+        self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
+
+    def start_pose(self) -> tuple[float, ...]:
+        """The hand's joint positions at the start of an episode (``config.initial``)."""
+        raise NotImplementedError
+
+    def _param_ranges(self) -> dict:
+        return {"joint_damping": self.config.damping_range, "joint_friction": self.config.friction_range}
+
+    def sample_initial(self, n: int) -> dict:
+        noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
+        hand = torch.minimum(torch.maximum(self._open_pose + noise, self._lower), self._upper)
+        q = torch.cat([hand, torch.zeros(n, 1, dtype=self.dtype, device=self.device)], -1)
+        sign = torch.where(self._rand(n, 1) < 0.5, -1.0, 1.0).to(self.dtype)
+        goal = sign * self._uniform(n, self.goal_range)
+        ref_index = self.sample_ref_index(n)
+        if self.reference_bank is not None:
+            goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
+        return {
+            "joint_q": q,
+            "joint_qd": torch.zeros(n, self.sim.nv, dtype=self.dtype, device=self.device),
+            "params": self.sample_params(n),
+            "goal": goal,
+            "ref_index": ref_index,
+        }
+
+    def reference(self, td, steps: torch.Tensor) -> TensorDict:
+        if self.reference_bank is not None:
+            return lookup(self.reference_bank, td[("task", "ref_index")], steps)
+        goal = td[("task", "goal")]  # [N, 1]
+        frac = (steps.to(self.dtype) / self.ramp_steps).clamp(max=1.0).unsqueeze(-1)  # [N, H, 1]
+        angle = goal.unsqueeze(1) * frac
+        speed = goal.unsqueeze(1) / (self.ramp_steps * self.sim.dt)
+        moving = ((steps >= 1) & (steps <= self.ramp_steps)).unsqueeze(-1)
+        damping, friction = self._nominal
+        if self.config.reference_torque == "episode":
+            damping = td[("sim", "params", "joint_damping")].to(self.dtype)[:, None]  # [N, 1, 1]
+            friction = td[("sim", "params", "joint_friction")].to(self.dtype)[:, None]
+        torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
+        half = 0.5 * angle
+        quat = torch.cat([torch.cos(half), torch.sin(half) * self._axis], -1)
+        pose = torch.cat([self._knob_pos.expand(*angle.shape[:2], 3), quat], -1)
+        wrench = torch.cat([torch.zeros_like(pose[..., :3]), torque * self._axis], -1)
+        return TensorDict({"pose": pose, "joint_q": angle, "wrench": wrench, "joint_torque": torque},
+                          batch_size=steps.shape)
+
+    def achieved_goal(self, obs: dict) -> torch.Tensor:
+        return obs[("object", "q")]
+
+    def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        ref = self.reference(task, task[("task", "step")])[:, 0]
+        angle = obs[("object", "q")]
+        axial = (obs[("object", "wrench")][:, 3:] * self._axis).sum(-1, keepdim=True)
+        terms = {
+            "pose": angle_tracking_reward(angle, ref["joint_q"], self.pose_scale),
+            "wrench": angle_tracking_reward(axial, ref["joint_torque"], self.torque_scale),
+            "action": action_penalty(action.to(self.dtype), self._act_weights),
+            "fingertip": fingertip_reward(obs[("fingertips", "pos")], obs[("object", "pose")][:, :3],
+                                          self.config.fingertip_scale),
+        }
+        c = self.coeffs
+        total = (c.lambda_pose * terms["pose"] + c.lambda_wrench * terms["wrench"] + c.lambda_act * terms["action"]
+                 + c.lambda_f * terms["fingertip"])
+        return total, terms
+
+    def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
+        return (obs[("object", "q")] - goal).abs() < self.success_threshold
+
+
