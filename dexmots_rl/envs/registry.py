@@ -10,7 +10,7 @@ Example:
     True
     >>> env = make_env("screw_claw", num_envs=4, differentiable=False, seed=0)
     >>> env.reset()["observation"].shape
-    torch.Size([4, 118])
+    torch.Size([4, 40])
 """
 
 from __future__ import annotations
