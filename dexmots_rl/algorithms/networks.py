@@ -66,7 +66,7 @@ def make_networks(obs_dim: int, action_dim: int, hidden=(256, 128), init_log_std
     ``ValueOperator``, both reading ``obs_key`` through the shared :class:`RunningNorm`.
 
     ``layer_norm`` puts a LayerNorm after every hidden layer, as DiffRL's SHAC networks do: without it the
-    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, README "Training screw_claw")."""
+    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, session 2)."""
     norm = RunningNorm(obs_dim)
     body = _mlp(obs_dim, action_dim, hidden, layer_norm)
     # the scale parameter is a log-std (exp mapping), as in SHAC's Gaussian actor

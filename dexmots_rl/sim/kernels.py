@@ -7,7 +7,7 @@ links and points have compile-time trip counts (the kernels are built per scene)
 is what keeps warp's adjoint exact (a non-unrolled loop that carries state is silently differentiated
 wrong). Everything is generic in the float type so gradient checks can run in float64.
 
-The reverse pass is warp's generated adjoint, made cheap in three ways (README, developer notes): a taped
+The reverse pass is warp's generated adjoint, made cheap in three ways (docs/devnotes.md): a taped
 step saves each function call's result (``Saved``) and ``wp.func_replay`` loads it instead of re-running
 the call at every nesting level; model constants are read through loads with an empty adjoint, so the
 compiler drops the adjoint terms that would only flow into the model; the contact functions
