@@ -17,7 +17,6 @@ config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), check
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 import time
@@ -31,6 +30,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
+from ..atomic import atomic_write_json, dumps_json
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
@@ -175,7 +175,7 @@ def train(cfg: DictConfig) -> dict:
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
                   "skipped_updates": counters["skipped_updates"], "run_dir": str(run_dir)}
-        (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
+        atomic_write_json(run_dir / "metrics.json", result)
     dist.close()
     return result
 
@@ -220,7 +220,7 @@ def _logger(cfg, run_dir: Path):
 
 def _log_row(logger, run_dir: Path, row: dict) -> None:
     with open(run_dir / "metrics.jsonl", "a") as f:
-        f.write(json.dumps(row) + "\n")
+        f.write(dumps_json(row) + "\n")
     if logger is not None:
         for key, value in row.items():
             if key not in ("iteration",) and isinstance(value, (int, float)) and value == value:

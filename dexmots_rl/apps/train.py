@@ -15,7 +15,6 @@ hydra's ConfigStore): the trainer trains exactly ``make_env(name)``. The method 
 from __future__ import annotations
 
 import importlib.util
-import json
 import logging
 import sys
 from pathlib import Path
@@ -52,16 +51,19 @@ def main() -> None:
 
     from .. import envs  # noqa: F401  (registers the tasks' configs with hydra)
     from ..algorithms.checkpoint import CheckpointError
+    from ..atomic import dumps_json
+    from ._cli import os_errors_as_one_line
 
     @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
     def _app(cfg: DictConfig) -> None:
         logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
         try:
-            result = run(cfg)
-        except (ValueError, CheckpointError, FileNotFoundError) as e:
+            with os_errors_as_one_line("dexmots-train"):
+                result = run(cfg)
+        except (ValueError, CheckpointError) as e:
             raise SystemExit(f"dexmots-train: {e}") from None
         if result:
-            print(json.dumps(result))
+            print(dumps_json(result))
             print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
                   file=sys.stderr)
 
