@@ -64,6 +64,9 @@ class DexEnv(EnvBase):
         scene: SceneModel | None = None,
     ):
         self.config = config.validate()
+        # what __reduce__ rebuilds from: the simulator holds warp (ctypes) arrays that cannot be pickled
+        self._init_kwargs = dict(config=config, num_envs=num_envs, device=device, differentiable=differentiable,
+                                 seed=seed, dtype=dtype, adjoint_clip=adjoint_clip, contact=contact, scene=scene)
         num_envs = config.num_envs if num_envs is None else num_envs
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs <= 0:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -162,6 +165,13 @@ class DexEnv(EnvBase):
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    # ------------------------------------------------------------------------------------ pickling
+    def __reduce__(self):
+        """Pickle / deepcopy as "rebuild from the constructor arguments": the copy gets a fresh simulator
+        (warp arrays and kernels are not picklable) and the same generator state, so it continues the
+        same random stream. Worker processes (spawn) and ``copy.deepcopy`` both go through this."""
+        return _rebuild_env, (type(self), self._init_kwargs, self.generator.get_state())
 
     # ------------------------------------------------------------------------------------ internals
     def _set_seed(self, seed: int | None):
@@ -314,6 +324,12 @@ class DexEnv(EnvBase):
             "done": terminated | truncated,
         })
         return next_td
+
+
+def _rebuild_env(cls, kwargs: dict, generator_state: torch.Tensor) -> DexEnv:
+    env = cls(**kwargs)
+    env.generator.set_state(generator_state)
+    return env
 
 
 class ScriptedPolicy(TensorDictModuleBase):
