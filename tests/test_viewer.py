@@ -78,6 +78,16 @@ def test_taken_port_is_a_clear_error(recording, capsys):
             main([str(recording), "--port", str(port)])
 
 
+@pytest.mark.parametrize("port", ["99999", "-1"])
+def test_out_of_range_port_fails_at_once(tmp_path, capsys, port):
+    # #16.6: viser used to start, then fail deep in asyncio with an OverflowError traceback; the check
+    # comes before the recording is even opened
+    with pytest.raises(SystemExit) as err:
+        main([str(tmp_path / "any.mcap"), "--port", port])
+    assert err.value.code == 2
+    assert "--port must be in 0..65535" in capsys.readouterr().err
+
+
 def test_bad_recording_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 30)
