@@ -128,4 +128,6 @@ def test_headless_browser_draws_hand_and_object(recording, tmp_path):
         pytest.skip("no Chromium on this machine (apt-get install chromium to run the browser check)")
     result = check.run_check(recording, out=tmp_path / "shot.png", size=(800, 500), timeout=90)
     assert result["ok"], result
+    # the hand, the object and the timeline are all drawn (#16.9)
+    assert result["hand_pixels"] >= 200 and result["object_pixels"] >= 200 and result["timeline"], result
     assert (tmp_path / "shot.png").stat().st_size > 10_000
