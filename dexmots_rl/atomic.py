@@ -12,13 +12,16 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import os
 import tempfile
+import time
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, Any, Callable
 
-__all__ = ["atomic_write", "atomic_torch_save"]
+__all__ = ["atomic_write", "atomic_torch_save", "atomic_write_json", "json_safe", "dumps_json", "clean_stale_temps"]
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,9 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) 
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        # mkstemp creates 0600; a plain open() would give 0666 & ~umask, which is what users expect of
+        # checkpoints and plans they share
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
@@ -56,3 +62,61 @@ def atomic_torch_save(obj, path: str | os.PathLike) -> None:
     import torch
 
     atomic_write(path, lambda f: torch.save(obj, f))
+
+
+def _umask() -> int:
+    # /proc avoids os.umask's set-and-restore, which races with other threads creating files
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by ``None`` (JSON has no NaN/Infinity; Python's
+    ``json`` would write bare ``NaN``, which strict parsers reject)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
+def dumps_json(obj: Any, **kwargs) -> str:
+    """Strict JSON text of ``obj``: non-finite floats become ``null``."""
+    return json.dumps(json_safe(obj), allow_nan=False, **kwargs)
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int | None = 2) -> None:
+    """Write ``obj`` as strict JSON (see :func:`dumps_json`) to ``path`` atomically."""
+    text = dumps_json(obj, indent=indent) + "\n"
+    atomic_write(path, lambda f: f.write(text.encode()))
+
+
+def clean_stale_temps(directory: str | os.PathLike, min_age_s: float = 0.0) -> list[Path]:
+    """Remove the temp files (``.<name>.*.tmp``) a killed writer left in ``directory``; returns them.
+
+    Only call it where no other writer can be mid-save (e.g. a run directory under its lock): a live
+    writer's temp file looks the same. ``min_age_s`` spares files modified more recently than that."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    removed, now = [], time.time()
+    for tmp in directory.glob(".*.tmp"):
+        try:
+            if tmp.is_file() and now - tmp.stat().st_mtime >= min_age_s:
+                tmp.unlink()
+                removed.append(tmp)
+        except FileNotFoundError:
+            continue
+    if removed:
+        log.info("removed %d stale temp file(s) in %s", len(removed), directory)
+    return removed

@@ -151,6 +151,20 @@ def check_image(img: np.ndarray, viewer, min_pixels: int) -> dict:
     return result
 
 
+# the viewer's timeline is viser's "Frame" slider: a visible [role=slider] element and its label
+TIMELINE_JS = """(() => {
+  const visible = e => { const r = e.getBoundingClientRect(); return r.width > 0 && r.height > 0; };
+  const sliders = [...document.querySelectorAll('[role="slider"]')].filter(visible).length;
+  return {sliders: sliders, frame_label: document.body.innerText.includes("Frame")};
+})()"""
+
+
+def timeline_drawn(cdp) -> dict:
+    """``{"sliders": n, "frame_label": bool}`` of the page (DevTools ``Runtime.evaluate``)."""
+    reply = cdp.call("Runtime.evaluate", expression=TIMELINE_JS, returnByValue=True)
+    return reply.get("result", {}).get("value") or {"sliders": 0, "frame_label": False}
+
+
 def make_recording(path: Path, num_envs: int = 2, steps: int = 10) -> Path:
     """A small scripted screw_claw recording (the fingers close on the knob)."""
     from dexmots_rl.envs import ScriptedPolicy, make_env
@@ -195,8 +209,11 @@ def run_check(recording: str | Path, out: str | Path | None = None, chromium: st
             png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
             img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
             result = check_image(img, viewer, min_pixels)
-            log.info("%.1f s: %d hand and %d object pixels", time.monotonic() - start, result["hand_pixels"],
-                     result["object_pixels"])
+            timeline = timeline_drawn(cdp)
+            result["timeline"] = bool(timeline["sliders"] >= 1 and timeline["frame_label"])
+            result["ok"] = result["ok"] and result["timeline"]
+            log.info("%.1f s: %d hand and %d object pixels, timeline %s", time.monotonic() - start,
+                     result["hand_pixels"], result["object_pixels"], result["timeline"])
             if result["ok"]:
                 break
         result["seconds"] = round(time.monotonic() - start, 1)

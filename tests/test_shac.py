@@ -221,8 +221,15 @@ def test_forward_reuses_existing_targets_and_matches_parts():
     torch.testing.assert_close(out["loss_critic"], loss.critic_loss(data))
     data["value_target"] = torch.zeros_like(data["value_target"])
     torch.testing.assert_close(loss(data)["loss_critic"], loss.critic_loss(data))
-    with pytest.raises(KeyError):
-        loss.critic_loss(td)
+
+
+def test_critic_loss_computes_missing_targets_like_torchrl_losses():
+    # issue #16.11: a rollout without TD(lambda) targets used to raise KeyError
+    td = tiny_rollout()
+    loss = make_loss()
+    expected = loss.critic_loss(loss.critic_targets(td))
+    torch.testing.assert_close(loss.critic_loss(td), expected)
+    assert "value_target" not in td.keys()  # computed on a detached copy, the input is left alone
 
 
 # ---------------------------------------------------------------------------- gradient isolation

@@ -107,7 +107,7 @@ def test_file_is_a_plain_dict(tmp_path):
     make_traj().save(path)
     data = torch.load(path, weights_only=True)
     assert type(data) is dict
-    assert data["format"] == "dexmots-trajectory" and data["version"] == 1 and type(data["dt"]) is float
+    assert data["format"] == "dexmots-trajectory" and data["version"] == 2 and type(data["dt"]) is float
 
 
 def test_atomic_write_leaves_no_temp_files(tmp_path):
@@ -158,7 +158,7 @@ BAD_CASES = {
     "wrong_format": (lambda d: {**d, "format": "something-else"}, "'format'"),
     "missing_format": (lambda d: {k: v for k, v in d.items() if k != "format"}, "'format'"),
     "not_a_dict": (lambda d: [d["pos"]], "'format'"),
-    "bad_version": (lambda d: {**d, "version": 2}, "'version'"),
+    "bad_version": (lambda d: {**d, "version": 3}, "'version'"),
     "missing_version": (lambda d: {k: v for k, v in d.items() if k != "version"}, "'version'"),
     "missing_dt": (lambda d: {k: v for k, v in d.items() if k != "dt"}, "'dt'"),
     "dt_zero": (lambda d: {**d, "dt": 0.0}, "'dt'"),

@@ -78,6 +78,16 @@ def test_taken_port_is_a_clear_error(recording, capsys):
             main([str(recording), "--port", str(port)])
 
 
+@pytest.mark.parametrize("port", ["99999", "-1"])
+def test_out_of_range_port_fails_at_once(tmp_path, capsys, port):
+    # #16.6: viser used to start, then fail deep in asyncio with an OverflowError traceback; the check
+    # comes before the recording is even opened
+    with pytest.raises(SystemExit) as err:
+        main([str(tmp_path / "any.mcap"), "--port", port])
+    assert err.value.code == 2
+    assert "--port must be in 0..65535" in capsys.readouterr().err
+
+
 def test_bad_recording_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 30)
@@ -118,4 +128,6 @@ def test_headless_browser_draws_hand_and_object(recording, tmp_path):
         pytest.skip("no Chromium on this machine (apt-get install chromium to run the browser check)")
     result = check.run_check(recording, out=tmp_path / "shot.png", size=(800, 500), timeout=90)
     assert result["ok"], result
+    # the hand, the object and the timeline are all drawn (#16.9)
+    assert result["hand_pixels"] >= 200 and result["object_pixels"] >= 200 and result["timeline"], result
     assert (tmp_path / "shot.png").stat().st_size > 10_000

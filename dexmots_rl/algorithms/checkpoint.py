@@ -4,7 +4,8 @@
 key                value
 =================  ====================================================================
 ``format``         ``"dexmots-checkpoint"``
-``version``        ``1``
+``version``        ``2`` (version 1: the same without a checksum, still read)
+``sha256``         :func:`~dexmots_rl.integrity.payload_digest` of everything else, checked on load
 ``task`` / algo    the task and algorithm names (resume checks them)
 ``config``         the resolved run configuration (plain dict)
 ``iteration``      iterations completed
@@ -32,20 +33,22 @@ from typing import Any
 import torch
 
 from ..atomic import atomic_torch_save
+from ..integrity import checksum_problem, with_checksum
 
 __all__ = ["CheckpointError", "FORMAT_NAME", "FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "latest_checkpoint"]
 
 FORMAT_NAME = "dexmots-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)  # 1: before checksums
 
 
 class CheckpointError(ValueError):
-    """A checkpoint file that is missing, truncated, not ours, or from another format version."""
+    """A checkpoint file that is missing, truncated, corrupt, not ours, or from another format version."""
 
 
 def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
     """Write ``state`` (plus format and version) to ``path`` atomically: temp file, fsync, ``os.replace``."""
-    atomic_torch_save({"format": FORMAT_NAME, "version": FORMAT_VERSION, **state}, path)
+    atomic_torch_save(with_checksum({"format": FORMAT_NAME, "version": FORMAT_VERSION, **state}), path)
 
 
 def load_checkpoint(path: str | os.PathLike, task: str | None = None) -> dict[str, Any]:
@@ -59,9 +62,14 @@ def load_checkpoint(path: str | os.PathLike, task: str | None = None) -> dict[st
         raise CheckpointError(f"checkpoint {path} is truncated or not a checkpoint ({type(e).__name__}: {e})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         raise CheckpointError(f"checkpoint {path}: not a {FORMAT_NAME} file")
-    if data.get("version") != FORMAT_VERSION:
-        raise CheckpointError(f"checkpoint {path}: format version {data.get('version')!r}, this library reads "
-                              f"version {FORMAT_VERSION}")
+    version = data.get("version")
+    if isinstance(version, bool) or version not in _READABLE_VERSIONS:
+        raise CheckpointError(f"checkpoint {path}: format version {version!r}, this library reads "
+                              f"versions {', '.join(map(str, _READABLE_VERSIONS))}")
+    if version >= 2:
+        problem = checksum_problem(data)
+        if problem is not None:
+            raise CheckpointError(f"checkpoint {path} {problem}; it cannot be trusted (use another checkpoint)")
     if task is not None and data.get("task") != task:
         raise CheckpointError(f"checkpoint {path} is from task {data.get('task')!r}, not {task!r}")
     return data

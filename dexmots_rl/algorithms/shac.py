@@ -17,9 +17,10 @@ config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), check
 
 from __future__ import annotations
 
-import json
 import logging
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -31,12 +32,15 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
+from ..atomic import atomic_write_json, dumps_json
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .distributed import Distributed
 from .evaluation import evaluate_policy
 from .networks import make_networks
+from .rundir import RunDirLock, prepare_fresh_run_dir, resume_config, truncate_logs
+from .validation import validate_run_config
 
 __all__ = ["build", "train"]
 
@@ -69,16 +73,67 @@ def build(cfg: DictConfig, rank: int = 0):
     return env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac
 
 
-def train(cfg: DictConfig) -> dict:
-    """Train (or resume) a run; returns the final metrics dict (also written to ``metrics.json``)."""
-    dist = Distributed.from_environment()
-    run_dir = Path(cfg.run_dir)
+def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
+    """Train (or resume) a run; returns the final metrics dict (also written to ``metrics.json``), ``{}``
+    when stopped early by ``stop_after``, or ``{"interrupted": "SIGINT", ...}`` after SIGINT/SIGTERM (a
+    checkpoint is saved first).
+
+    Before any work: the config is validated (:func:`.validation.validate_run_config`), the run directory
+    is locked, and a fresh run refuses a directory holding another run unless ``overwrite=true``. A
+    resume takes the checkpoint's task/algo/seed; ``overrides`` (the command line's, from the hydra
+    app) that change them fail, ``None`` compares the whole ``cfg`` (:func:`.rundir.resume_config`), and
+    log rows past the checkpoint are truncated (:func:`.rundir.truncate_logs`)."""
     start = None
-    if cfg.resume:
-        start = load_checkpoint(latest_checkpoint(cfg.resume), task=cfg.task.name)
-        if start.get("algo") != cfg.algo.name:
-            raise CheckpointError(f"{cfg.resume} was trained with algo {start.get('algo')!r}, not {cfg.algo.name!r}")
+    if not cfg.resume:
+        validate_run_config(cfg)
+        run_dir = Path(cfg.run_dir)
+    else:  # what is validated is what trains: the checkpoint's config with the user's run keys
+        start = load_checkpoint(latest_checkpoint(cfg.resume))
+        cfg = resume_config(cfg, start, cfg.resume, overrides)
+        validate_run_config(cfg)
+        for what, name in (("task", cfg.task.name), ("algo", cfg.algo.name)):
+            if start.get(what) != name:
+                raise CheckpointError(f"{cfg.resume} was trained with {what} {start.get(what)!r}, not {name!r}")
         run_dir = Path(cfg.resume)
+    dist = Distributed.from_environment()
+    lock = RunDirLock(run_dir) if dist.is_main else None
+    try:
+        if dist.is_main and start is None:
+            prepare_fresh_run_dir(run_dir, bool(cfg.get("overwrite", False)))
+        elif dist.is_main:
+            truncate_logs(run_dir, int(start["iteration"]))
+        with _StopOnSignal() as stop:
+            return _train(cfg, run_dir, start, dist, stop)
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM while training: finish the iteration, checkpoint, return (no traceback); a second
+    signal interrupts at once. Only the main thread can install handlers; elsewhere this is a no-op."""
+
+    def __init__(self):
+        self.signal, self._old = None, {}
+
+    def _handle(self, signum, frame):
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signal.Signals(signum).name
+        log.warning("%s: stopping after this iteration with a checkpoint (again to abort)", self.signal)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac = build(cfg, dist.rank)
     modules = {"actor": actor, "critic": critic, "loss": loss, "norm": norm}
     if ahac is not None:
@@ -104,8 +159,9 @@ def train(cfg: DictConfig) -> dict:
     bar = tqdm(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
                disable=not (cfg.progress and dist.is_main), file=sys.stderr)
     t_start = time.perf_counter() - counters["wall_clock_s"]
-    stop = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
-    while counters["iteration"] < stop:
+    stop_at = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
+    interrupted = False
+    while counters["iteration"] < stop_at and not interrupted:
         it = counters["iteration"]
         frac = 1.0 - it / iterations if cfg.algo.lr_decay == "linear" else 1.0
         for opt, lr in ((actor_opt, cfg.algo.actor_lr), (critic_opt, cfg.algo.critic_lr)):
@@ -151,7 +207,8 @@ def train(cfg: DictConfig) -> dict:
         updater.step()
         td = next_rollout_start(env, rollout)
 
-        # 5. bookkeeping
+        # 5. bookkeeping; every rank sees a signal one rank got, so all stop at the same iteration
+        interrupted = bool(dist.sum(torch.tensor([float(stop.signal is not None)])) > 0)
         counters["iteration"] += 1
         counters["env_steps"] += rollout.numel() * dist.world_size
         counters["wall_clock_s"] = time.perf_counter() - t_start
@@ -161,8 +218,8 @@ def train(cfg: DictConfig) -> dict:
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
         if dist.is_main:
             _log_row(logger, run_dir, row)
-            last = counters["iteration"] == stop
-            if last or counters["iteration"] % cfg.checkpoint_every == 0:
+            last = counters["iteration"] == stop_at
+            if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
                 _save(run_dir, cfg, counters, modules, optimizers, td, env)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
                 ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
@@ -170,12 +227,14 @@ def train(cfg: DictConfig) -> dict:
                                            **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
     bar.close()
     result = {}
-    if dist.is_main and counters["iteration"] == iterations:
+    if interrupted:
+        result = {"interrupted": stop.signal or "signal", "iteration": counters["iteration"], "run_dir": str(run_dir)}
+    if dist.is_main and counters["iteration"] == iterations and not interrupted:
         ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
                   "skipped_updates": counters["skipped_updates"], "run_dir": str(run_dir)}
-        (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
+        atomic_write_json(run_dir / "metrics.json", result)
     dist.close()
     return result
 
@@ -220,7 +279,7 @@ def _logger(cfg, run_dir: Path):
 
 def _log_row(logger, run_dir: Path, row: dict) -> None:
     with open(run_dir / "metrics.jsonl", "a") as f:
-        f.write(json.dumps(row) + "\n")
+        f.write(dumps_json(row) + "\n")
     if logger is not None:
         for key, value in row.items():
             if key not in ("iteration",) and isinstance(value, (int, float)) and value == value:

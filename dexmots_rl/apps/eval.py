@@ -10,10 +10,12 @@ The episodes are the checkpoint's task (:func:`dexmots_rl.algorithms.evaluation.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
+
+from ..atomic import atomic_write_json, dumps_json
+from ._cli import os_errors_as_one_line
 
 __all__ = ["main"]
 
@@ -32,6 +34,11 @@ def main(argv: list[str] | None = None) -> None:
     from ..algorithms.checkpoint import CheckpointError
     from ..algorithms.evaluation import evaluate_policy, policy_from_checkpoint
 
+    with os_errors_as_one_line("dexmots-eval"):
+        _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError)
+
+
+def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None:
     try:
         actor, data = policy_from_checkpoint(args.checkpoint, args.device)
         result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
@@ -41,8 +48,8 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"dexmots-eval: {e}") from None
     src = Path(args.checkpoint)
     out = Path(args.out) if args.out else (src if src.is_dir() else src.parent.parent) / "eval.json"
-    out.write_text(json.dumps(result, indent=2))
-    print(json.dumps(result))
+    atomic_write_json(out, result)
+    print(dumps_json(result))
 
 
 if __name__ == "__main__":

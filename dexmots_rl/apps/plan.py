@@ -14,13 +14,16 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import sys
 import time
 from pathlib import Path
 
 import torch
 
-__all__ = ["build_parser", "main", "run_plan_bench"]
+from ._cli import os_errors_as_one_line
+
+__all__ = ["build_parser", "main", "run_plan_bench", "validate_args"]
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +60,37 @@ def _plan_inputs(args, scene):
     return start.expand(n, nq), goal.expand(n, nq), params
 
 
+def validate_args(args) -> None:
+    """One-line ``SystemExit`` naming the option for a value no plan can use; runs before any work, so
+    nothing is written. Coordinates are bounded like the references an env accepts (|x| <= 100)."""
+    from ..envs.references import MAX_ABS_COORDINATE
+
+    def bad(name, why):
+        raise SystemExit(f"dexmots-plan: --{name} {why}")
+
+    for name, positive in (("steps", args.steps), ("iterations", args.iterations)):
+        if positive <= 0:
+            bad(name, f"must be a positive integer, got {positive}")
+    if not (math.isfinite(args.lr) and args.lr > 0):
+        bad("lr", f"must be a positive finite number, got {args.lr}")
+    for name in ("start", "goal"):
+        for v in getattr(args, name) or []:
+            if not (math.isfinite(v) and abs(v) <= MAX_ABS_COORDINATE):
+                bad(name, f"values must be finite with |x| <= {MAX_ABS_COORDINATE:g}, got {v}")
+    for name in ("damping", "friction"):
+        for v in getattr(args, name) or []:
+            if not (math.isfinite(v) and v >= 0):
+                bad(name, f"values must be finite and >= 0, got {v}")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
+    validate_args(args)
+    with os_errors_as_one_line("dexmots-plan"):
+        _plan(args)
+
+
+def _plan(args) -> None:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     from ..envs import task_scene
     from ..trajectories import optimize_wrenches

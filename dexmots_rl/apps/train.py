@@ -15,7 +15,6 @@ hydra's ConfigStore): the trainer trains exactly ``make_env(name)``. The method 
 from __future__ import annotations
 
 import importlib.util
-import json
 import logging
 import sys
 from pathlib import Path
@@ -35,14 +34,15 @@ def config_dir() -> Path:
 CONFIG_DIR = config_dir()
 
 
-def run(cfg) -> dict:
-    """Train with the method ``cfg.algo.name`` (after the tasks are registered)."""
+def run(cfg, overrides: list[str] | None = None) -> dict:
+    """Train with the method ``cfg.algo.name`` (after the tasks are registered); ``overrides``: the
+    command line's, which a resume compares with its checkpoint (see :func:`dexmots_rl.algorithms.shac.train`)."""
     from ..algorithms import shac
 
     trainers = {"shac": shac.train, "ahac": shac.train}
     if cfg.algo.name not in trainers:
         raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
-    return trainers[cfg.algo.name](cfg)
+    return trainers[cfg.algo.name](cfg, overrides)
 
 
 def main() -> None:
@@ -52,16 +52,25 @@ def main() -> None:
 
     from .. import envs  # noqa: F401  (registers the tasks' configs with hydra)
     from ..algorithms.checkpoint import CheckpointError
+    from ..atomic import dumps_json
+    from ._cli import os_errors_as_one_line
 
     @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
     def _app(cfg: DictConfig) -> None:
         logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+        from hydra.core.hydra_config import HydraConfig
+
         try:
-            result = run(cfg)
-        except (ValueError, CheckpointError, FileNotFoundError) as e:
+            with os_errors_as_one_line("dexmots-train"):
+                result = run(cfg, list(HydraConfig.get().overrides.task))
+        except (ValueError, CheckpointError) as e:
             raise SystemExit(f"dexmots-train: {e}") from None
+        if result.get("interrupted"):
+            print(f"dexmots-train: {result['interrupted']} at iteration {result['iteration']}: checkpoint saved; "
+                  f"continue with: dexmots-train resume={result['run_dir']}", file=sys.stderr)
+            raise SystemExit(130 if result["interrupted"] == "SIGINT" else 143)
         if result:
-            print(json.dumps(result))
+            print(dumps_json(result))
             print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
                   file=sys.stderr)
 

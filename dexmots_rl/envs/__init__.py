@@ -16,6 +16,11 @@ from .transforms import GOAL_MODES, POLICY_KEYS, GoalConditioning, observation_t
 from . import tasks  # noqa: E402,F401  (registers the tasks)
 from .tasks.screw_claw import ScrewClawConfig, ScrewClawEnv  # noqa: E402
 
+try:  # gymnasium ids dexmots/<Task>-v0 (see .gym); the torchrl API does not need gymnasium
+    from . import gym  # noqa: E402,F401
+except ImportError:  # pragma: no cover - gymnasium is a dependency, but keep torchrl-only installs working
+    pass
+
 __all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "BenchPoses", "DexEnv", "ScriptedPolicy", "GOAL_MODES", "GoalConditioning",
            "OBS_MODES", "POLICY_KEYS", "PlanProblem", "RewardCoefficients", "TASKS", "TaskConfig",
            "load_reference_bank", "list_tasks", "make_env", "observation_transform", "register_task",

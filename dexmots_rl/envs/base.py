@@ -22,6 +22,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
+from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .references import load_reference_bank
 
@@ -64,10 +65,13 @@ class DexEnv(EnvBase):
         scene: SceneModel | None = None,
     ):
         self.config = config.validate()
+        # what __reduce__ rebuilds from: the simulator holds warp (ctypes) arrays that cannot be pickled
+        self._init_kwargs = dict(config=config, num_envs=num_envs, device=device, differentiable=differentiable,
+                                 seed=seed, dtype=dtype, adjoint_clip=adjoint_clip, contact=contact, scene=scene)
         num_envs = config.num_envs if num_envs is None else num_envs
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs <= 0:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        device = torch.device(device)
+        device = check_device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         if scene is None:
             from ..sim import load_scene
@@ -163,6 +167,13 @@ class DexEnv(EnvBase):
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
+    # ------------------------------------------------------------------------------------ pickling
+    def __reduce__(self):
+        """Pickle / deepcopy as "rebuild from the constructor arguments": the copy gets a fresh simulator
+        (warp arrays and kernels are not picklable) and the same generator state, so it continues the
+        same random stream. Worker processes (spawn) and ``copy.deepcopy`` both go through this."""
+        return _rebuild_env, (type(self), self._init_kwargs, self.generator.get_state())
+
     # ------------------------------------------------------------------------------------ internals
     def _set_seed(self, seed: int | None):
         self.generator.manual_seed(int(seed) % (2**63))
@@ -251,9 +262,26 @@ class DexEnv(EnvBase):
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
         return out
 
+    def _state_keys(self) -> list:
+        """The entries a step reads from its input TensorDict (besides ``"action"``)."""
+        return [("sim", "joint_q"), ("sim", "joint_qd"), *(("sim", "params", name) for name in self.sim.scene.param_names),
+                ("task", "goal"), ("task", "step"), ("task", "ref_index"), ("info", "sim_failures")]
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
+        action = tensordict.get("action", None)
+        if action is None:
+            raise KeyError("env.step: the input TensorDict has no 'action'")
         validate_action(action, self.num_envs, self.actions.action_dim)
+        present = tensordict.keys(True)
+        missing = [key for key in self._state_keys() if key not in present]
+        if missing:
+            # the step is a pure function of the TensorDict: without the state there is nothing to step
+            raise KeyError(f"env.step: the input TensorDict lacks the state entry {missing[0]!r} (and "
+                           f"{len(missing) - 1} more); step the TensorDict returned by env.reset() / env.step()")
+        # the physics clamps to [-1, 1] (ActionMap); the reward must see the same action, or a huge
+        # action would be penalised for force the hand never applied (and |a| = 1e19 overflowed the
+        # norm). Clamping here gives zero gradient outside the box, exactly like the physics.
+        action = action.clamp(-1.0, 1.0)
         q = tensordict.get(("sim", "joint_q"))
         qd = tensordict.get(("sim", "joint_qd"))
         params = {name: tensordict.get(("sim", "params", name)) for name in self.sim.scene.param_names}
@@ -297,6 +325,12 @@ class DexEnv(EnvBase):
             "done": terminated | truncated,
         })
         return next_td
+
+
+def _rebuild_env(cls, kwargs: dict, generator_state: torch.Tensor) -> DexEnv:
+    env = cls(**kwargs)
+    env.generator.set_state(generator_state)
+    return env
 
 
 class ScriptedPolicy(TensorDictModuleBase):

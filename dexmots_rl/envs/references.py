@@ -27,9 +27,30 @@ from typing import Sequence
 import torch
 from tensordict import TensorDict
 
-__all__ = ["REFERENCE_KEYS", "load_reference_bank", "lookup"]
+__all__ = ["MAX_ABS_COORDINATE", "MAX_ABS_WRENCH", "REFERENCE_KEYS", "check_reference_values", "load_reference_bank",
+           "lookup"]
 
 REFERENCE_KEYS = ("pose", "joint_q", "wrench", "joint_torque")
+# Sanity bounds of a plan an env accepts: 100 rad is ~16 turns of a knob and 100 m is far outside any
+# scene; a plan past them is corrupt or mis-scaled (a 3.46e8 rad reference was once accepted silently).
+MAX_ABS_COORDINATE = 100.0
+MAX_ABS_WRENCH = 1.0e6  # N / N m
+
+
+def check_reference_values(plan, source: str = "plan") -> None:
+    """``ValueError`` naming the field when a plan holds non-finite or absurd values (see the bounds)."""
+    limits = {"pos": MAX_ABS_COORDINATE, "joint_q": MAX_ABS_COORDINATE, "wrench": MAX_ABS_WRENCH,
+              "joint_torque": MAX_ABS_WRENCH}
+    for name, bound in limits.items():
+        value = getattr(plan, name)
+        if value.numel() == 0:
+            continue
+        if not bool(torch.isfinite(value).all()):
+            raise ValueError(f"references: {source}: field {name!r} contains non-finite values")
+        worst = float(value.abs().max())
+        if worst > bound:
+            raise ValueError(f"references: {source}: field {name!r} reaches |{worst:.4g}| > {bound:g}; "
+                             "the plan is corrupt or mis-scaled")
 
 
 def _trajectories(src) -> list:
@@ -54,6 +75,8 @@ def _trajectories(src) -> list:
 def load_reference_bank(src, dtype: torch.dtype = torch.float32, device="cpu") -> TensorDict:
     """Stack plans into a bank ``[M, T]`` (see the module docstring); all plans must share K and dt."""
     plans = _trajectories(src)
+    for i, plan in enumerate(plans):
+        check_reference_values(plan, str(src) if isinstance(src, (str, os.PathLike)) else f"plan {i}")
     ks = {t.num_joints for t in plans}
     dts = {round(t.dt, 9) for t in plans}
     if len(ks) != 1 or len(dts) != 1:

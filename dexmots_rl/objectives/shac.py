@@ -300,10 +300,13 @@ class SHACLoss(LossModule):
     def critic_loss(self, tensordict: TensorDictBase) -> torch.Tensor:
         """Regression of the critic onto ``tensor_keys.value_target`` (see :meth:`critic_targets`).
 
-        Inputs and targets are detached, so this never sends gradients into the actor or the rollout."""
+        A rollout without the targets gets them computed here (as torchrl's losses do); a trainer that
+        iterates minibatches calls :meth:`critic_targets` once instead, since targets need whole
+        trajectories. Inputs and targets are detached: no gradient reaches the actor or the rollout."""
         target = tensordict.get(self.tensor_keys.value_target, None)
         if target is None:
-            raise KeyError(f"{self.tensor_keys.value_target!r} not found: call loss.critic_targets(rollout) first")
+            tensordict = self.critic_targets(tensordict)
+            target = tensordict.get(self.tensor_keys.value_target)
         value = self._value(tensordict.detach(), self.critic_network_params)
         loss = distance_loss(target.detach().reshape(value.shape), value, loss_function=self.loss_critic_type)
         return self._reduce_loss(loss, tensordict)

@@ -21,7 +21,7 @@ from .kernels import build_kernels
 from .model import HINGE, MAX_PLANES, ContactParams, SceneModel
 from .stepper import Trajectory
 
-__all__ = ["Control", "StepOutput", "Simulator", "SimStep"]
+__all__ = ["Control", "StepOutput", "Simulator", "SimStep", "check_device"]
 
 LIMIT_FREQUENCY = 60.0  # rad/s: joint-limit springs are as stiff as a 60 rad/s oscillator on the joint's inertia
 
@@ -69,6 +69,22 @@ def _wp_dtype(dtype: torch.dtype):
     raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
 
 
+
+def check_device(device) -> torch.device:
+    """``torch.device(device)``, or a ``ValueError`` naming it when it is a GPU this machine lacks (warp
+    would fail later with an ``IndexError`` deep in its device table)."""
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        index = 0 if dev.index is None else dev.index
+        if index >= count:
+            raise ValueError(f"device {str(device)!r} is not available: this machine has {count} CUDA device(s)"
+                             f"{'' if count else ' (or torch was built without CUDA)'}; use device='cpu'")
+    elif dev.type != "cpu":
+        raise ValueError(f"device {str(device)!r} is not supported: use 'cpu' or 'cuda[:index]'")
+    return dev
+
+
 class Simulator:
     """Many worlds of one scene on one device; each env step is ``substeps`` kernel launches.
 
@@ -107,7 +123,7 @@ class Simulator:
         if scene.object_shape == 0 and len(scene.object_planes) > MAX_PLANES:
             raise ValueError(f"object has {len(scene.object_planes)} faces; at most {MAX_PLANES} are supported")
         self.scene, self.num_worlds, self.substeps = scene, num_worlds, substeps
-        self.torch_device = torch.device(device)
+        self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         self.dtype = dtype
         self.sub_dt = scene.timestep if dt is None else dt / substeps

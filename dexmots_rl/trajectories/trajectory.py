@@ -3,7 +3,7 @@
 A :class:`PoseWrenchTrajectory` is what the policy is conditioned on (paper §4): for every step t = 0..T-1 the
 object's base pose, its articulation coordinates and the net wrench that should act on it.
 
-File format (version 1)
+File format (version 2)
 -----------------------
 One ``.pt`` file written by :func:`torch.save` holding a *plain* dict, so it loads with
 ``torch.load(weights_only=True)`` and never unpickles classes:
@@ -12,7 +12,8 @@ One ``.pt`` file written by :func:`torch.save` holding a *plain* dict, so it loa
 key                value
 =================  ===================================================================
 ``format``         the string ``"dexmots-trajectory"``
-``version``        the int ``1``
+``version``        the int ``2`` (version 1, the same without ``sha256``, is still read)
+``sha256``         :func:`~dexmots_rl.integrity.payload_digest` of all other entries, verified on load
 ``dt``             python float > 0, seconds between steps
 ``pos``            float tensor [T, 3], object base position (world frame)
 ``quat``           float tensor [T, 4], unit quaternion, **wxyz** (MuJoCo order)
@@ -52,6 +53,7 @@ import torch
 from tensordict import TensorDict
 
 from ..atomic import atomic_torch_save
+from ..integrity import CHECKSUM_KEY, checksum_problem, with_checksum
 
 __all__ = [
     "FORMAT_NAME",
@@ -65,7 +67,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 FORMAT_NAME = "dexmots-trajectory"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)  # 1: before checksums
 #: Tensor fields of a trajectory, in file order.
 FIELDS = ("pos", "quat", "joint_q", "wrench", "joint_torque")
 #: Fixed trailing sizes; ``None`` means the articulation size K shared by joint_q and joint_torque.
@@ -269,7 +272,7 @@ class PoseWrenchTrajectory:
         out: dict[str, Any] = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "dt": float(self._dt)}
         for name in FIELDS:
             out[name] = self._td[name].detach().to("cpu").contiguous()
-        return out
+        return with_checksum(out)
 
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically: a temp file beside ``path``, fsync, then ``os.replace`` over the target."""
@@ -281,15 +284,20 @@ class PoseWrenchTrajectory:
         if not isinstance(data, Mapping) or data.get("format") != FORMAT_NAME:
             raise TrajectoryFormatError(f"{source}: field 'format' is not {FORMAT_NAME!r}; not a dexmots trajectory")
         version = data.get("version")
-        if version != FORMAT_VERSION or isinstance(version, bool):
+        if version not in _READABLE_VERSIONS or isinstance(version, bool):
             raise TrajectoryFormatError(
-                f"{source}: field 'version' = {version!r} is unsupported (this reader handles {FORMAT_VERSION})"
+                f"{source}: field 'version' = {version!r} is unsupported (this reader handles "
+                f"{', '.join(map(str, _READABLE_VERSIONS))})"
             )
         if "dt" not in data:
             raise TrajectoryFormatError(f"{source}: missing field 'dt'")
         fields = {name: data.get(name) for name in FIELDS}
         try:
             validate_trajectory_fields(fields, data["dt"])
+            # fields first (their errors name the field), then the checksum catches what still looks valid
+            problem = checksum_problem(data) if version >= 2 else None
+            if problem is not None:
+                raise TrajectoryFormatError(f"field {CHECKSUM_KEY!r}: the plan {problem}")
             return cls(fields["pos"], fields["quat"], fields["wrench"], data["dt"],
                        joint_q=fields["joint_q"], joint_torque=fields["joint_torque"])
         except TrajectoryFormatError as err:

@@ -383,6 +383,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--live", action="store_true", help="reload the file whenever it changes (see the docs)")
     p.add_argument("--poll", type=float, default=0.5, help="seconds between checks of the file with --live")
     args = p.parse_args(argv)
+    if not 0 <= args.port <= 65535:  # before loading anything: viser would fail late, deep in asyncio
+        p.exit(2, f"dexmots-view: --port must be in 0..65535 (0: any free port), got {args.port}\n")
+    if not (args.poll > 0 and args.poll < float("inf")):
+        p.exit(2, f"dexmots-view: --poll must be a positive number of seconds, got {args.poll}\n")
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     try:
         viewer = ReplayViewer(args.recording, host=args.host, port=args.port, live=args.live, poll_s=args.poll)

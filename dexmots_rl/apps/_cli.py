@@ -1,0 +1,21 @@
+"""Shared console-script error handling: an environment failure (full disk, read-only or missing
+directory, permissions) is one line on stderr naming the program, not a traceback."""
+
+from __future__ import annotations
+
+import errno
+from contextlib import contextmanager
+
+__all__ = ["os_errors_as_one_line"]
+
+
+@contextmanager
+def os_errors_as_one_line(prog: str):
+    """Turn an ``OSError`` raised inside the block into ``SystemExit("<prog>: ...")``."""
+    try:
+        yield
+    except OSError as e:
+        where = f" ({e.filename})" if e.filename else ""
+        if e.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
+            raise SystemExit(f"{prog}: no space left on device{where}; free some space and rerun") from None
+        raise SystemExit(f"{prog}: {e.strerror or e}{where}") from None
