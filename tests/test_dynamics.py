@@ -261,3 +261,19 @@ def test_worlds_are_independent(make_claw_sim, taped):
         for name, a, b in zip(out.names, out, ref):
             assert torch.equal(a[w : w + 1].detach(), b), (w, name)
     assert float(out.contact_force[1::2].detach().min()) > 0.0  # the odd worlds are in contact
+
+
+def test_cpu_threads_setting(monkeypatch):
+    """DEXMOTS_CPU_THREADS caps the world blocks a step is split into; a bad value names the variable."""
+    import warp as wp
+
+    from dexmots_rl.sim.stepper import world_blocks
+
+    cpu = wp.get_device("cpu")
+    monkeypatch.setenv("DEXMOTS_CPU_THREADS", "1")
+    assert world_blocks(256, cpu) == [(0, 256)]
+    monkeypatch.setenv("DEXMOTS_CPU_THREADS", "4")
+    assert len(world_blocks(256, cpu)) == 4 and world_blocks(256, cpu)[-1] == (192, 256)
+    monkeypatch.setenv("DEXMOTS_CPU_THREADS", "zero")
+    with pytest.raises(ValueError, match="DEXMOTS_CPU_THREADS"):
+        world_blocks(256, cpu)

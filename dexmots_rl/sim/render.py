@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 
 import numpy as np
 import torch
@@ -55,7 +54,7 @@ from .render_kernels import (
     place_segments,
     render_kernel,
 )
-from .stepper import run_blocks
+from .stepper import cpu_threads, run_blocks
 
 __all__ = ["Camera", "Renderer", "default_camera", "reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND",
            "LABEL_OBJECT"]
@@ -280,7 +279,7 @@ class Renderer:
         return self._segs
 
     def _blocks(self, total: int) -> list[tuple[int, int]]:
-        threads = (os.cpu_count() or 1) if self.device.is_cpu else 1
+        threads = cpu_threads() if self.device.is_cpu else 1
         blocks = max(1, min(threads, total // MIN_PIXELS_PER_THREAD))
         bounds = [round(i * total / blocks) for i in range(blocks + 1)]
         return list(zip(bounds[:-1], bounds[1:]))
