@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from dexmots_rl.sim import Control, ContactParams, Simulator, load_scene
-from dexmots_rl.trajectories import PoseWrenchTrajectory, interpolate_reference, optimize_wrenches, slerp
+from dexmots_rl.quaternions import slerp
+from dexmots_rl.trajectories import PoseWrenchTrajectory, interpolate_reference, optimize_wrenches
 
 from simutil import CLAW
 

@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from dexmots_rl.quaternions import quat_angle
 from dexmots_rl.envs.rewards import (
     RewardCoefficients,
     action_penalty,
@@ -15,7 +16,6 @@ from dexmots_rl.envs.rewards import (
     distal_weighted_joint_weights,
     fingertip_reward,
     pose_reward,
-    quat_angle,
     wrench_reward,
 )
 

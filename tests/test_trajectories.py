@@ -9,14 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from dexmots_rl.trajectories import (
-    PoseWrenchTrajectory,
-    TrajectoryFormatError,
-    load_pose_demo,
-    quat_multiply,
-    quat_to_matrix,
-    wrenches_from_poses,
-)
+from dexmots_rl.quaternions import quat_multiply, quat_to_matrix
+from dexmots_rl.trajectories import PoseWrenchTrajectory, TrajectoryFormatError, load_pose_demo, wrenches_from_poses
 
 
 def make_traj(T: int = 7, K: int = 1, dtype: torch.dtype = torch.float32) -> PoseWrenchTrajectory:

@@ -154,6 +154,18 @@ class DexEnv(EnvBase):
     def achieved_goal(self, obs: dict) -> torch.Tensor:
         raise NotImplementedError
 
+    def goal_window(self, td: TensorDictBase, steps: torch.Tensor, with_wrench: bool) -> torch.Tensor:
+        """The goal-conditioning window [N, H, D (+ W)]: the reference's object coordinates at ``steps``
+        [N, H] (the articulation angles, or pos + wxyz quat of a free body), then, ``with_wrench``, the
+        generalised force (articulation) or force + torque (free body). Built from :meth:`reference`;
+        tasks override it with a path that builds no TensorDict (it runs every step)."""
+        ref = self.reference(td, steps)
+        articulated = self.sim.scene.articulated
+        parts = [ref["joint_q"] if articulated else ref["pose"]]
+        if with_wrench:
+            parts.append(ref["joint_torque"] if articulated else ref["wrench"])
+        return torch.cat(parts, -1)
+
     def scripted_action(self, td: TensorDictBase) -> torch.Tensor:
         """A hand-written controller's torque-space action [N, nu] for the state in ``td`` (smoke runs,
         recordings and plots); tasks without one raise ``NotImplementedError``."""

@@ -21,6 +21,8 @@ from dataclasses import dataclass, fields
 
 import torch
 
+from ..quaternions import quat_angle
+
 __all__ = [
     "RewardCoefficients",
     "action_penalty",
@@ -29,7 +31,6 @@ __all__ = [
     "distal_weighted_joint_weights",
     "fingertip_reward",
     "pose_reward",
-    "quat_angle",
     "wrench_reward",
 ]
 
@@ -48,28 +49,6 @@ def angle_tracking_reward(angle: torch.Tensor, goal: torch.Tensor, scale: float 
 def _check_last(name: str, x: torch.Tensor, size: int) -> None:
     if x.shape[-1:] != (size,):
         raise ValueError(f"{name} must have shape [..., {size}], got {tuple(x.shape)}")
-
-
-def quat_angle(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
-    """Geodesic angle (rad, in [0, π]) between wxyz quaternions ``[..., 4]``; returns ``[..., 1]``.
-
-    Sign-invariant (``q`` and ``-q`` are the same rotation). Computed as ``2 atan2(‖v‖, |w|)`` of the
-    relative rotation ``q1* ⊗ q2 = (w, v)``: unlike ``2 acos(|q1·q2|)`` its gradient stays finite at
-    zero error, and it does not depend on the quaternions' norms.
-
-    Example:
-        >>> import math, torch
-        >>> q = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]])  # 90° about z
-        >>> round(quat_angle(torch.tensor([[1.0, 0, 0, 0]]), q).item(), 4)
-        1.5708
-    """
-    _check_last("q1", q1, 4)
-    _check_last("q2", q2, 4)
-    w1, v1 = q1[..., :1], q1[..., 1:]
-    w2, v2 = q2[..., :1], q2[..., 1:]
-    w = w1 * w2 + (v1 * v2).sum(-1, keepdim=True)
-    v = w1 * v2 - w2 * v1 - torch.linalg.cross(v1, v2, dim=-1)
-    return 2.0 * torch.atan2(torch.linalg.vector_norm(v, dim=-1, keepdim=True), w.abs())
 
 
 def pose_reward(

@@ -10,16 +10,8 @@ Example:
 
 from __future__ import annotations
 
-from .finite_differences import (
-    angular_velocities,
-    load_pose_demo,
-    quat_conjugate,
-    quat_log,
-    quat_multiply,
-    quat_to_matrix,
-    wrenches_from_poses,
-)
-from .planner import PlanResult, interpolate_reference, optimize_wrenches, slerp
+from .finite_differences import angular_velocities, load_pose_demo, wrenches_from_poses
+from .planner import PlanResult, interpolate_reference, optimize_wrenches
 from .trajectory import (
     FIELDS,
     FORMAT_NAME,
@@ -40,11 +32,6 @@ __all__ = [
     "interpolate_reference",
     "load_pose_demo",
     "optimize_wrenches",
-    "quat_conjugate",
-    "quat_log",
-    "quat_multiply",
-    "quat_to_matrix",
-    "slerp",
     "validate_trajectory_fields",
     "wrenches_from_poses",
 ]

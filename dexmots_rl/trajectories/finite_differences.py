@@ -34,62 +34,14 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..quaternions import quat_conjugate, quat_log, quat_multiply, quat_to_matrix
 from .trajectory import PoseWrenchTrajectory, TrajectoryFormatError, _check_dt, validate_trajectory_fields
 
 __all__ = [
     "angular_velocities",
     "load_pose_demo",
-    "quat_conjugate",
-    "quat_log",
-    "quat_multiply",
-    "quat_to_matrix",
     "wrenches_from_poses",
 ]
-
-
-def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product ``a ⊗ b`` of wxyz quaternions [..., 4]."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
-
-
-def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
-    """Conjugate (= inverse for unit quaternions), wxyz."""
-    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
-
-
-def quat_log(q: torch.Tensor) -> torch.Tensor:
-    """Rotation vector ``2·log(q)`` (axis · angle) of unit wxyz quaternions, using the shorter of ±q."""
-    q = torch.where(q[..., :1] < 0, -q, q)
-    w, v = q[..., 0], q[..., 1:]
-    s = torch.linalg.vector_norm(v, dim=-1)
-    angle = 2.0 * torch.atan2(s, w)
-    # angle/s → 2/w as s → 0; the guarded division keeps gradients finite at the identity
-    safe_s = torch.where(s > 1e-12, s, torch.ones_like(s))
-    scale = torch.where(s > 1e-12, angle / safe_s, 2.0 / w)
-    return v * scale.unsqueeze(-1)
-
-
-def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [..., 3, 3] (body → world) of unit wxyz quaternions [..., 4]."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(q.shape[:-1] + (3, 3))
 
 
 def _first_derivative_and_second(x: torch.Tensor, dt: float) -> tuple[torch.Tensor, torch.Tensor]:

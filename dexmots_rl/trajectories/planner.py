@@ -33,10 +33,10 @@ from pathlib import Path
 
 import torch
 
-from .finite_differences import quat_conjugate, quat_multiply
+from ..quaternions import quat_conjugate, quat_multiply, slerp
 from .trajectory import PoseWrenchTrajectory
 
-__all__ = ["PlanResult", "interpolate_reference", "optimize_wrenches", "slerp"]
+__all__ = ["PlanResult", "interpolate_reference", "optimize_wrenches"]
 
 log = logging.getLogger(__name__)
 
@@ -56,28 +56,6 @@ class PlanResult:
     @property
     def trajectory(self) -> PoseWrenchTrajectory:
         return self.trajectories[0]
-
-
-def slerp(q0: torch.Tensor, q1: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-    """Spherical interpolation of wxyz unit quaternions ``[..., 4]`` at fractions ``s [..., 1]`` (shortest arc).
-
-    Example:
-        >>> import math, torch
-        >>> q1 = torch.tensor([math.cos(0.5), 0.0, 0.0, math.sin(0.5)])     # 1 rad about z
-        >>> mid = slerp(torch.tensor([1.0, 0, 0, 0]), q1, torch.tensor([0.5]))
-        >>> round(2 * math.acos(mid[0].item()), 4)
-        0.5
-    """
-    dot = (q0 * q1).sum(-1, keepdim=True)
-    q1 = torch.where(dot < 0, -q1, q1)
-    dot = dot.abs().clamp(max=1.0)
-    theta = torch.acos(dot)
-    small = theta < 1e-6
-    sin = torch.sin(theta).clamp(min=1e-12)
-    a = torch.where(small, 1.0 - s, torch.sin((1.0 - s) * theta) / sin)
-    b = torch.where(small, s, torch.sin(s * theta) / sin)
-    out = a * q0 + b * q1
-    return out / out.norm(dim=-1, keepdim=True)
 
 
 def interpolate_reference(start: torch.Tensor, goal: torch.Tensor, steps: int, free_body: bool) -> torch.Tensor:

@@ -125,9 +125,12 @@ class KnobTurnEnv(DexEnv):
             "ref_index": ref_index,
         }
 
-    def reference(self, td, steps: torch.Tensor) -> TensorDict:
+    def joint_reference(self, td, steps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(angle, torque)`` of the reference at env steps ``steps`` [N, H], each [N, H, 1]: the lean path
+        the reward and the goal window use every step (no TensorDict)."""
         if self.reference_bank is not None:
-            return lookup(self.reference_bank, td[("task", "ref_index")], steps)
+            ref = lookup(self.reference_bank, td[("task", "ref_index")], steps)
+            return ref["joint_q"], ref["joint_torque"]
         goal = td[("task", "goal")]  # [N, 1]
         frac = (steps.to(self.dtype) / self.ramp_steps).clamp(max=1.0).unsqueeze(-1)  # [N, H, 1]
         angle = goal.unsqueeze(1) * frac
@@ -138,6 +141,12 @@ class KnobTurnEnv(DexEnv):
             damping = td[("sim", "params", "joint_damping")].to(self.dtype)[:, None]  # [N, 1, 1]
             friction = td[("sim", "params", "joint_friction")].to(self.dtype)[:, None]
         torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
+        return angle, torque
+
+    def reference(self, td, steps: torch.Tensor) -> TensorDict:
+        if self.reference_bank is not None:
+            return lookup(self.reference_bank, td[("task", "ref_index")], steps)
+        angle, torque = self.joint_reference(td, steps)
         half = 0.5 * angle
         quat = torch.cat([torch.cos(half), torch.sin(half) * self._axis], -1)
         pose = torch.cat([self._knob_pos.expand(*angle.shape[:2], 3), quat], -1)
@@ -145,16 +154,20 @@ class KnobTurnEnv(DexEnv):
         return TensorDict({"pose": pose, "joint_q": angle, "wrench": wrench, "joint_torque": torque},
                           batch_size=steps.shape)
 
+    def goal_window(self, td, steps: torch.Tensor, with_wrench: bool) -> torch.Tensor:
+        angle, torque = self.joint_reference(td, steps)
+        return torch.cat([angle, torque], -1) if with_wrench else angle
+
     def achieved_goal(self, obs: dict) -> torch.Tensor:
         return obs[("object", "q")]
 
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        ref = self.reference(task, task[("task", "step")])[:, 0]
+        ref_angle, ref_torque = self.joint_reference(task, task[("task", "step")])
         angle = obs[("object", "q")]
         axial = (obs[("object", "wrench")][:, 3:] * self._axis).sum(-1, keepdim=True)
         terms = {
-            "pose": angle_tracking_reward(angle, ref["joint_q"], self.pose_scale),
-            "wrench": angle_tracking_reward(axial, ref["joint_torque"], self.torque_scale),
+            "pose": angle_tracking_reward(angle, ref_angle[:, 0], self.pose_scale),
+            "wrench": angle_tracking_reward(axial, ref_torque[:, 0], self.torque_scale),
             "action": action_penalty(action.to(self.dtype), self._act_weights),
             "fingertip": fingertip_reward(obs[("fingertips", "pos")], obs[("object", "pose")][:, :3],
                                           self.config.fingertip_scale),
