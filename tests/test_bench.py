@@ -54,3 +54,13 @@ def test_train_bench_over_seeds_reports_each_run_and_the_spread(tmp_path):
     assert result["success_rate"] == pytest.approx(sum(rates) / 2)
     assert result["success_rate_std"] == pytest.approx(abs(rates[0] - rates[1]) / math.sqrt(2))
     assert {"task", "algo", "success_rate", "wall_clock_s", "env_steps"} <= set(result)
+
+
+def test_pipeline_bench_reports_rollout_and_collector_against_the_kernels():
+    result = run(["pipeline", "--task", "screw_claw", "--num-envs", "4", "--steps", "3", "--min-time", "0.05",
+                  "--quiet"])
+    (row,) = result["rows"]
+    for key in ("kernel_steps_per_s", "rollout_steps_per_s", "collector_steps_per_s"):
+        assert math.isfinite(row[key]) and row[key] > 0, key
+    assert row["rollout_fraction"] == pytest.approx(row["rollout_steps_per_s"] / row["kernel_steps_per_s"])
+    assert row["collector_fraction"] == pytest.approx(row["collector_steps_per_s"] / row["kernel_steps_per_s"])

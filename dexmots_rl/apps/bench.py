@@ -2,6 +2,7 @@
 
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
+    dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
 
@@ -49,6 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-steps", type=int, default=16, help="env steps per timed chunk (from the contact state)")
     p.add_argument("--obs", default="state", choices=["state", "rgb"],
                    help="rgb: also render a 64x64 image of every world after each step (ours only)")
+
+    p = sub.add_parser("pipeline", help="env.rollout and a torchrl Collector (+VecNorm) against the kernels")
+    common(p)
+    p.add_argument("--num-envs", type=int, nargs="+", default=[64, 256])
+    p.add_argument("--steps", type=int, default=50, help="env steps per timed chunk")
+    p.add_argument("--min-time", type=float, default=2.0, help="seconds of timed work per number")
 
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
     common(p)
@@ -122,6 +129,10 @@ def _execute(args: argparse.Namespace) -> dict:
                                   args.settle_steps, args.chunk_steps, obs=args.obs)
         if args.bench == "train":
             return _train_bench(args)
+        if args.bench == "pipeline":
+            from .bench_pipeline import run_pipeline
+
+            return run_pipeline(args.task, args.num_envs, args.steps, args.min_time, args.device)
         if args.bench == "plan":
             from .plan import run_plan_bench
 
