@@ -22,6 +22,7 @@ import types
 
 import warp as wp
 
+from .base_kernels import build_base
 from .chain_kernels import build_chain
 from .contact_kernels import build_contact
 from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
@@ -44,14 +45,16 @@ P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
 
 @functools.lru_cache(maxsize=None)
 def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int,
-                  hinges_only: bool = False):
+                  hinges_only: bool = False, base_boxes: int = 0):
     """Return a namespace with the struct type and kernels specialised for one scene structure.
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
-    (fewer instructions forward and, above all, in the generated adjoint)."""
+    (fewer instructions forward and, above all, in the generated adjoint). ``base_boxes``: static collision
+    boxes of the object's base (base_kernels.py); 0 compiles the base contact out."""
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
     HINGES_ONLY = bool(hinges_only)
+    NBASE = int(base_boxes)
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -99,6 +102,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         sdf_origin: vec3
         sdf_cell: dtype
         shape_size: vec3
+        if NBASE > 0:  # the operable object's static base (SceneModel.base_box_*): only in scenes that have one
+            box_pos: wp.array(dtype=vec3)  # [NB] box centres, world frame
+            box_rot: wp.array(dtype=mat33)  # [NB] box-to-world rotations
+            box_half: wp.array(dtype=vec3)  # [NB] half sizes
         gravity: vec3
         # contact: stiffness, damping, sharpness, friction, slip velocity, surface smoothing
         ke: dtype
@@ -131,6 +138,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         point_jacobian_vjp=contact.point_jacobian_vjp))
     fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
     vecJ_row, link_inertia = chain.vecJ_row, chain.link_inertia
+    base = build_base(types.SimpleNamespace(
+        dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
+        Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
+        fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33))
+    link_base_contacts = base.link_base_contacts
 
     @wp.func
     def limit_ramp(x: dtype):
@@ -252,6 +264,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                     t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, fc)
                     for j in range(J):
                         gen = gen + unit_j(j) * res[7 + j]
+            # contact with the object's static base: joint forces on the finger, the normal force counts
+            # in the summed contact force (no wrench: the base does not move)
+            if wp.static(NBASE > 0):
+                gen_b, fn_b = link_base_contacts(m, x, R, i, f * J, A, O, qdf, saved, ro)
+                gen = gen + gen_b
+                cforce = cforce + fn_b
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
         rhs = vecJ()
         diag = matJ()
@@ -434,4 +452,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns.object_sdf, ns.contact_force = contact.object_sdf, contact.contact_force  # for probe kernels (tests)
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
     ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
+    ns.box_sdf, ns.base_contact = base.box_sdf, base.base_contact  # for probe kernels (tests)
     return ns

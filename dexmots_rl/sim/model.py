@@ -7,6 +7,10 @@ module only walks the compiled ``MjModel``. Naming conventions in the MJCF:
 
 * body ``hand`` is the fixed base; each child body starts one finger chain;
 * body ``object`` is the operated object; its joint is a ``hinge`` (e.g. a knob) or ``free`` (e.g. a cube);
+* optionally, body ``object_base`` (a child of the worldbody, no joint) is the static part of an operable
+  object (a stapler's base, the held blade of scissors): the parent of ``object``, whose hinge then turns the
+  moving part against it. Its box geoms (at most ``MAX_BASE_BOXES``) are static collision shapes for the
+  finger spheres;
 * sites named ``*tip*`` mark fingertips (one per finger, on its last link).
 """
 
@@ -33,6 +37,7 @@ OBJECT_PARAM_DOCS = {
 }
 MAX_PLANES = 32  # convex objects with more faces than this (or non-convex meshes) use a signed-distance grid
 SDF_RESOLUTION = 40  # grid points along the longest padded axis
+MAX_BASE_BOXES = 4  # static collision boxes of an ``object_base`` body (each costs a test per finger sphere)
 
 
 class AssetError(ValueError):
@@ -119,6 +124,16 @@ class SceneModel:
     object_sdf_cell: float  # grid spacing
     gravity: np.ndarray
     timestep: float
+    # static collision shapes of the operable object's base (body ``object_base``): boxes, world frame,
+    # metres. Empty ([0, ...]) when the scene has no base.
+    base_box_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] box centres
+    base_box_rot: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))  # [B, 3, 3] box-to-world
+    base_box_half: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] half sizes
+
+    @property
+    def num_base_boxes(self) -> int:
+        """Static collision boxes of the object's base (0: no ``object_base`` body)."""
+        return int(len(self.base_box_half))
 
     @property
     def num_hand_dofs(self) -> int:
@@ -247,6 +262,29 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]
     return SHAPE_SDF, none, np.zeros(2), bound, _sdf_grid(mesh, pad=0.25 * float(np.ptp(mesh.bounds, 0).max()))
 
 
+def _base_boxes(m, d, obj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-frame centres [B, 3], rotations [B, 3, 3] and half sizes [B, 3] of the box geoms of body
+    ``object_base`` (the parent of ``object``); empty arrays when the object's parent is not named so."""
+    import mujoco
+
+    base = int(m.body_parentid[obj])
+    if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, base) != "object_base":
+        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object_base") >= 0:
+            raise AssetError("body 'object_base' must be the parent of body 'object'")
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3))
+    if m.body_parentid[base] != 0 or m.body_jntnum[base] != 0:
+        raise AssetError("body 'object_base' must be a child of the worldbody without joints (it is static)")
+    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == base]
+    if not 1 <= len(geoms) <= MAX_BASE_BOXES:
+        raise AssetError(f"body 'object_base' needs 1 to {MAX_BASE_BOXES} geoms, found {len(geoms)}")
+    for g in geoms:
+        if int(m.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_BOX):
+            raise AssetError(f"geom {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)!r} on 'object_base': "
+                             "only boxes are supported on the object's base")
+    return (np.stack([d.geom_xpos[g].copy() for g in geoms]), np.stack([d.geom_xmat[g].reshape(3, 3).copy() for g in geoms]),
+            np.stack([m.geom_size[g, :3].copy() for g in geoms]))
+
+
 def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneModel:
     """Compile an MJCF file with MuJoCo and extract the hand chains and the object.
 
@@ -346,6 +384,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
     shape, planes, size, bound, (sdf, sdf_origin, sdf_cell) = _object_shape(m, obj)
     omass, ocom, oinertia = _body_inertia(m, obj)
+    box_pos, box_rot, box_half = _base_boxes(m, d, obj)
     odof = int(m.jnt_dofadr[oj])
 
     return SceneModel(
@@ -399,4 +438,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         object_sdf_cell=sdf_cell,
         gravity=m.opt.gravity.copy(),
         timestep=float(m.opt.timestep),
+        base_box_pos=box_pos,
+        base_box_rot=box_rot,
+        base_box_half=box_half,
     )

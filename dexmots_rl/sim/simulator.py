@@ -144,6 +144,7 @@ class Simulator:
             scene.object_kind,
             scene.object_shape,
             bool((np.asarray(scene.joint_type) == HINGE).all()),
+            base_boxes=scene.num_base_boxes,
         )
         self.model = self._make_model()
 
@@ -180,6 +181,9 @@ class Simulator:
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
+        if s.num_base_boxes:  # the object's static base (base_kernels.py)
+            m.box_pos, m.box_rot = arr(s.base_box_pos, k.vec3), arr(s.base_box_rot, k.mat33)
+            m.box_half = arr(s.base_box_half, k.vec3)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)

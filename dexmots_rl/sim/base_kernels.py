@@ -1,0 +1,119 @@
+"""Contact of the finger spheres with the static base of an operable object (body ``object_base``).
+
+An operable object (a stapler, a spray bottle, scissors) is a static base plus one moving part on a
+sprung hinge (the scene's ``object``). The base's boxes (``SceneModel.base_box_*``, world frame) are
+collision shapes for every finger sample sphere: a smooth box signed distance (log-sum-exp over the six
+face planes, like ``polytope_sdf``: C-infinity, exact on the faces, rounded by ``surface_smoothing`` at
+edges and corners) and the same penalty law as the object (``contact_force``, with a static body: zero
+velocity). The forces act on the finger's joints only; the base feels nothing (it does not move).
+
+Built per scene structure by :func:`build_base` from the types and functions :func:`kernels.build_kernels`
+defines; finger_step calls :func:`link_base_contacts` once per link inside a ``wp.static`` branch, so scenes
+without a base compile to the same code as before. The reverse pass is warp's generated adjoint
+(checked against finite differences in tests/test_object_base.py), apart from ``contact_force``'s
+hand-written one. Saved slots: base contact ``b`` of sample sphere ``pi`` keeps its ``contact_force``
+result and law in column ``num_points + pi * B + b`` of ``Saved.contact`` / ``Saved.law`` (the first
+``num_points`` columns are the object contacts).
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import types
+
+import warp as wp
+
+from .contact_kernels import CONTACT_CUTOFF
+
+__all__ = ["build_base"]
+
+
+def build_base(t) -> types.SimpleNamespace:
+    """The base-contact functions for the types, scene constants and functions in ``t`` (attributes: dtype,
+    vec3, vec4, mat33, vecJ, matJ3, vecC, Model, Saved, J, P, NB (boxes), NPTS (sample spheres in the
+    hand), contact_force, unit_j, fixed_vec3, fixed_mat33)."""
+    dtype, vec3, vec4, mat33, vecJ, matJ3 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3
+    Model, Saved, J, P, NB, NPTS = t.Model, t.Saved, t.J, t.P, t.NB, t.NPTS
+    contact_force, unit_j, fixed_vec3, fixed_mat33 = t.contact_force, t.unit_j, t.fixed_vec3, t.fixed_mat33
+
+    @wp.func
+    def box_sdf(m: Model, b: int, p: vec3):
+        """Smooth signed distance and outward unit normal of box b at p (box frame), packed (d, n): the
+        log-sum-exp smooth max of the six face distances g = +-p_i - h_i (h: half sizes), d = hi + s log
+        sum_k exp((g_k - hi) / s), n = normalize(sum_k exp((g_k - hi) / s) n_k), s = surface smoothing.
+        d >= max_k g_k, equal to it on a face away from edges."""
+        h = fixed_vec3(m.box_half, b)
+        g0 = p[0] - h[0]
+        g1 = -p[0] - h[0]
+        g2 = p[1] - h[1]
+        g3 = -p[1] - h[1]
+        g4 = p[2] - h[2]
+        g5 = -p[2] - h[2]
+        hi = wp.max(wp.max(wp.max(g0, g1), wp.max(g2, g3)), wp.max(g4, g5))
+        w0 = wp.exp((g0 - hi) / m.smooth)
+        w1 = wp.exp((g1 - hi) / m.smooth)
+        w2 = wp.exp((g2 - hi) / m.smooth)
+        w3 = wp.exp((g3 - hi) / m.smooth)
+        w4 = wp.exp((g4 - hi) / m.smooth)
+        w5 = wp.exp((g5 - hi) / m.smooth)
+        n = wp.normalize(vec3(w0 - w1, w2 - w3, w4 - w5))
+        return vec4(hi + m.smooth * wp.log(w0 + w1 + w2 + w3 + w4 + w5), n[0], n[1], n[2])
+
+    @wp.func
+    def base_near(m: Model, x: vec3, R: mat33, pi: int, b: int):
+        """1 when sample sphere pi of a link at (x, R) may touch box b, else 0: its centre is inside the box
+        grown by the sphere radius and the contact law's cutoff band. The smooth distance is never below
+        the largest face distance, so a sphere outside gets exactly zero from contact_force anyway; the
+        test only skips the work. A branch condition: empty adjoint."""
+        rad = m.point_radius[pi]
+        if rad > dtype(0.0):
+            pl = wp.transpose(m.box_rot[b]) * (x + R * m.point_pos[pi] - m.box_pos[b])
+            reach = rad + dtype(CONTACT_CUTOFF) / m.beta
+            h = m.box_half[b]
+            if wp.abs(pl[0]) < h[0] + reach and wp.abs(pl[1]) < h[1] + reach and wp.abs(pl[2]) < h[2] + reach:
+                return 1
+        return 0
+
+    @wp.func_grad(base_near)
+    def adj_base_near(m: Model, x: vec3, R: mat33, pi: int, b: int, adj_ret: int):
+        return
+
+    @wp.func
+    def base_contact(m: Model, p: vec3, rad: dtype, b: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,
+                     saved: Saved, row: int, slot: int):
+        """Penalty contact of a finger sphere (centre p, radius rad, world frame) with the static box b;
+        packed result as ``point_contact``'s (force on the finger, contact point, normal force, joint
+        forces)."""
+        Rb = fixed_mat33(m.box_rot, b)
+        cb = fixed_vec3(m.box_pos, b)
+        sd = box_sdf(m, b, wp.transpose(Rb) * (p - cb))
+        return contact_force(m, p, rad, sd, Rb, cb, vec3(), vec3(), base, A, O, qdf, saved, row, slot)
+
+    @wp.func_replay(base_contact)
+    def replay_base_contact(m: Model, p: vec3, rad: dtype, b: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,
+                            saved: Saved, row: int, slot: int):
+        return saved.contact[row, slot]
+
+    @wp.func
+    def link_base_contacts(m: Model, x: vec3, R: mat33, i: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,
+                           saved: Saved, row: int):
+        """Contact of every sample sphere of link i (frame x, R; finger dofs from ``base``, Jacobian rows
+        A, O, joint velocities qdf) with every base box: the summed generalised joint forces and normal
+        force. ``saved`` (row ``row``, empty when untaped): each contact's result for the reverse pass."""
+        gen = vecJ()
+        fn = dtype(0.0)
+        for sp in range(P):
+            pi = i * P + sp
+            for b in range(NB):
+                if base_near(m, x, R, pi, b) != 0:
+                    p = x + R * fixed_vec3(m.point_pos, pi)
+                    slot = NPTS + pi * NB + b
+                    res = base_contact(m, p, m.point_radius[pi], b, base, A, O, qdf, saved, row, slot)
+                    if saved.contact.shape[0] > 0:
+                        saved.contact[row, slot] = res
+                    fn = fn + res[6]
+                    for j in range(J):
+                        gen = gen + unit_j(j) * res[7 + j]
+        return gen, fn
+
+    return types.SimpleNamespace(box_sdf=box_sdf, base_near=base_near, base_contact=base_contact,
+                                 link_base_contacts=link_base_contacts)
