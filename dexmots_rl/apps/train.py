@@ -37,8 +37,16 @@ CONFIG_DIR = config_dir()
 def run(cfg, overrides: list[str] | None = None) -> dict:
     """Train with the method ``cfg.algo.name`` (after the tasks are registered); ``overrides``: the
     command line's, which a resume compares with its checkpoint (see :func:`dexmots_rl.algorithms.shac.train`)."""
+    import torch
+
     from ..algorithms import shac
 
+    threads = cfg.get("torch_threads")
+    if threads is not None:
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
+        if str(cfg.device).startswith("cpu"):
+            torch.set_num_threads(threads)
     trainers = {"shac": shac.train, "ahac": shac.train}
     if cfg.algo.name not in trainers:
         raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
