@@ -4,6 +4,7 @@
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
+    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac (no resume)
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
 
@@ -25,7 +26,12 @@ __all__ = ["CONFIG_DIR", "config_dir", "main"]
 
 def config_dir() -> Path:
     """The hydra config directory: the installed ``dexmots_rl.configs`` package data (a wheel or an
-    editable install maps the repository's ``configs/`` there)."""
+    editable install maps the repository's ``configs/`` there). A source tree's own ``configs/`` comes first:
+    an editable install maps ``dexmots_rl.configs`` to the checkout it was installed from, which is not the
+    one imported when running from another git worktree."""
+    root = Path(__file__).resolve().parents[2]
+    if (root / "pyproject.toml").is_file() and (root / "configs" / "config.yaml").is_file():
+        return root / "configs"
     spec = importlib.util.find_spec("dexmots_rl.configs")
     if spec is not None and spec.submodule_search_locations:
         return Path(next(iter(spec.submodule_search_locations)))
@@ -37,12 +43,13 @@ CONFIG_DIR = config_dir()
 
 def run(cfg) -> dict:
     """Train with the method ``cfg.algo.name`` (after the tasks are registered)."""
-    from ..algorithms import shac
+    import importlib
 
-    trainers = {"shac": shac.train, "ahac": shac.train}
+    # algo name -> the module whose train(cfg) runs it (imported on use: each pulls in only what it needs)
+    trainers = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac"}
     if cfg.algo.name not in trainers:
         raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
-    return trainers[cfg.algo.name](cfg)
+    return importlib.import_module(f"..algorithms.{trainers[cfg.algo.name]}", __package__).train(cfg)
 
 
 def main() -> None:
