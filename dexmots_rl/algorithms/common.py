@@ -48,8 +48,9 @@ def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float =
     with warnings.catch_warnings():  # "experimental for a batched env": it is what reduce_batch_dims is for
         warnings.filterwarnings("ignore", message="Support of VecNormV2", category=UserWarning)
         env.append_transform(vecnorm)
-    env.append_transform(ClipTransform(in_keys=["observation"], low=-obs_clip, high=obs_clip))
-    env.append_transform(RewardSum())
+        env.append_transform(ClipTransform(in_keys=["observation"], low=-obs_clip, high=obs_clip))
+        env.append_transform(RewardSum())
+        env.observation_spec  # noqa: B018  (built and cached here, where the warning is filtered)
     return env, vecnorm
 
 

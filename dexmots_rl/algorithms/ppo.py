@@ -48,6 +48,7 @@ def build(cfg: DictConfig):
     critic = ValueOperator(mlp(obs_dim, 1, a.hidden, a.activation, out_gain=1.0), in_keys=["observation"])
     # separate actor and critic networks (no shared trunk), so the critic coefficient only scales the critic
     gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=critic, average_gae=False)
+    gae.set_keys(reward="reward_scaled")  # the critic learns scaled returns (see train); "reward" stays the task's
     loss = ClipPPOLoss(actor, critic, clip_epsilon=a.clip_epsilon, entropy_coeff=a.entropy_coeff,
                        critic_coeff=a.critic_coeff, loss_critic_type=a.loss_critic_type,
                        normalize_advantage=a.normalize_advantage)
@@ -74,6 +75,8 @@ def train(cfg: DictConfig) -> dict:
         # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
         updates = 0
+        # screw_claw's returns are ~1e2: scaled, the critic's targets are O(1-10) (rl_games' reward x 0.01)
+        data.set(("next", "reward_scaled"), data.get(("next", "reward")) * a.reward_scale)
         for _ in range(a.epochs):
             with torch.no_grad():  # advantages with the current critic, every epoch (sota's recipe)
                 gae(data)
@@ -83,7 +86,10 @@ def train(cfg: DictConfig) -> dict:
                 total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", torch.zeros(()))
                 optimizer.zero_grad()
                 total.backward()
-                grad_norm = torch.nn.utils.clip_grad_norm_(loss.parameters(), a.max_grad_norm)
+                # actor and critic clipped apart: in one global norm the critic's gradient (value errors of
+                # O(returns)) shrank the actor's steps to nothing (tuning run P1, docs/baseline_tuning.md)
+                grad_norm = torch.nn.utils.clip_grad_norm_(actor.parameters(), a.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(critic.parameters(), a.max_grad_norm)
                 optimizer.step()
                 updates += 1
                 for key in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx"):
