@@ -101,6 +101,10 @@ def policy_from_checkpoint(path, device="cpu"):
     data = load_checkpoint(latest_checkpoint(path) if path.is_dir() else path)
     cfg = data["config"]
     env = make_env(cfg["task"], num_envs=1, differentiable=False, seed=0, device=device)
+    from .common import BASELINES, policy_from_data
+
+    if data.get("algo") in BASELINES:  # PPO / SAC: their own networks behind the training env's normaliser
+        return policy_from_data(data, env), data
     actor, critic, norm = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
                                         tuple(cfg["algo"]["hidden"]), cfg["algo"]["init_log_std"],
                                         layer_norm=cfg["algo"].get("layer_norm", False))

@@ -56,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=int, nargs="+", default=[64, 256])
     p.add_argument("--steps", type=int, default=50, help="env steps per timed chunk")
     p.add_argument("--min-time", type=float, default=2.0, help="seconds of timed work per number")
+    p.add_argument("--torch-threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
 
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
     common(p)
@@ -132,7 +133,8 @@ def _execute(args: argparse.Namespace) -> dict:
         if args.bench == "pipeline":
             from .bench_pipeline import run_pipeline
 
-            return run_pipeline(args.task, args.num_envs, args.steps, args.min_time, args.device)
+            return run_pipeline(args.task, args.num_envs, args.steps, args.min_time, args.device,
+                                args.torch_threads or None)
         if args.bench == "plan":
             from .plan import run_plan_bench
 

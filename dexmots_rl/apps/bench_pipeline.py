@@ -8,12 +8,14 @@ Three env-steps/s figures per world count, from the same task env (``make_env(ta
   same actor, ``frames_per_batch = num_envs * T``.
 
 ``rollout_fraction`` and ``collector_fraction`` are those divided by ``kernel``: the share of the
-simulator's speed a training loop keeps.
+simulator's speed a training loop keeps. torch runs with ``--torch-threads`` intra-op threads (1, as
+``dexmots-train`` sets them on CPU): idle torch workers spin against the simulator's warp threads.
 """
 
 from __future__ import annotations
 
 import logging
+import warnings
 
 import torch
 
@@ -63,8 +65,10 @@ def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: 
         row = {"num_envs": num_envs, "kernel_steps_per_s": measure_rate(kernel, min_time),
                "rollout_steps_per_s": measure_rate(rollout, min_time)}
     normed = make_env(task, num_envs=num_envs, differentiable=False, seed=0, device=device)
-    normed.append_transform(VecNorm(in_keys=["observation"], new_api=True, reduce_batch_dims=True))
-    collector = Collector(normed, _actor(normed), frames_per_batch=num_envs * steps, total_frames=-1)
+    with warnings.catch_warnings():  # VecNorm's "experimental with a batch size", the collector's InitTracker note
+        warnings.simplefilter("ignore")
+        normed.append_transform(VecNorm(in_keys=["observation"], new_api=True, reduce_batch_dims=True))
+        collector = Collector(normed, _actor(normed), frames_per_batch=num_envs * steps, total_frames=-1)
     batches = iter(collector)
     next(batches)  # warm-up
 
@@ -79,7 +83,16 @@ def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: 
     return row
 
 
-def run_pipeline(task: str, num_envs=(64, 256), steps: int = 50, min_time: float = 2.0, device: str = "cpu") -> dict:
-    """Every row for ``task`` (see the module docstring)."""
-    return {"task": task, "steps_per_chunk": steps,
-            "rows": [pipeline_row(task, n, steps, min_time, device) for n in num_envs]}
+def run_pipeline(task: str, num_envs=(64, 256), steps: int = 50, min_time: float = 2.0, device: str = "cpu",
+                 torch_threads: int | None = 1) -> dict:
+    """Every row for ``task`` (see the module docstring). ``torch_threads``: torch's intra-op threads during
+    the run (None: torch's default), as ``dexmots-train``'s ``torch_threads`` sets them."""
+    previous = torch.get_num_threads()
+    if torch_threads is not None:
+        torch.set_num_threads(torch_threads)
+    try:
+        rows = [pipeline_row(task, n, steps, min_time, device) for n in num_envs]
+    finally:
+        torch.set_num_threads(previous)
+    return {"task": task, "steps_per_chunk": steps, "torch_threads": torch.get_num_threads() if torch_threads is None
+            else torch_threads, "rows": rows}

@@ -4,6 +4,7 @@
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
+    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac (no resume)
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
 
@@ -24,7 +25,12 @@ __all__ = ["CONFIG_DIR", "config_dir", "main"]
 
 def config_dir() -> Path:
     """The hydra config directory: the installed ``dexmots_rl.configs`` package data (a wheel or an
-    editable install maps the repository's ``configs/`` there)."""
+    editable install maps the repository's ``configs/`` there). A source tree's own ``configs/`` comes first:
+    an editable install maps ``dexmots_rl.configs`` to the checkout it was installed from, which is not the
+    one imported when running from another git worktree."""
+    root = Path(__file__).resolve().parents[2]
+    if (root / "pyproject.toml").is_file() and (root / "configs" / "config.yaml").is_file():
+        return root / "configs"
     spec = importlib.util.find_spec("dexmots_rl.configs")
     if spec is not None and spec.submodule_search_locations:
         return Path(next(iter(spec.submodule_search_locations)))
@@ -36,13 +42,25 @@ CONFIG_DIR = config_dir()
 
 def run(cfg, overrides: list[str] | None = None) -> dict:
     """Train with the method ``cfg.algo.name`` (after the tasks are registered); ``overrides``: the
-    command line's, which a resume compares with its checkpoint (see :func:`dexmots_rl.algorithms.shac.train`)."""
-    from ..algorithms import shac
+    command line's, which a SHAC/AHAC resume compares with its checkpoint (:func:`dexmots_rl.algorithms.shac.train`)."""
+    import importlib
 
-    trainers = {"shac": shac.train, "ahac": shac.train}
+    import torch
+
+    threads = cfg.get("torch_threads")
+    if threads is not None:
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
+        if str(cfg.device).startswith("cpu"):
+            torch.set_num_threads(threads)
+    # algo name -> the module whose train(cfg) runs it (imported on use: each pulls in only what it needs)
+    trainers = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac"}
     if cfg.algo.name not in trainers:
         raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
-    return trainers[cfg.algo.name](cfg, overrides)
+    module = importlib.import_module(f"..algorithms.{trainers[cfg.algo.name]}", __package__)
+    if trainers[cfg.algo.name] == "shac":
+        return module.train(cfg, overrides)
+    return module.train(cfg)
 
 
 def main() -> None:

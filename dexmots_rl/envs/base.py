@@ -179,6 +179,11 @@ class DexEnv(EnvBase):
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
+    def task_terminated(self, obs: dict) -> torch.Tensor:
+        """[N, 1] bool: worlds whose episode ends early after this step (e.g. a dropped object); none by
+        default. A simulation blow-up terminates a world regardless."""
+        return torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.device)
+
     # ------------------------------------------------------------------------------------ pickling
     def __reduce__(self):
         """Pickle / deepcopy as "rebuild from the constructor arguments": the copy gets a fresh simulator
@@ -325,7 +330,7 @@ class DexEnv(EnvBase):
             step = torch.where(blown, torch.zeros_like(step), step)
             failures = failures + blown.long()
         truncated = step >= self.max_episode_steps
-        terminated = blown
+        terminated = blown | self.task_terminated(obs)
         next_td = TensorDict(obs, batch_size=[self.num_envs], device=self.device)
         next_td.update({
             "reward": reward,

@@ -25,6 +25,7 @@ import warp as wp
 from .base_kernels import build_base
 from .chain_kernels import build_chain
 from .contact_kernels import build_contact
+from .palm_kernels import build_palm
 from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
 __all__ = ["build_kernels"]
@@ -45,14 +46,21 @@ P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
 
 @functools.lru_cache(maxsize=None)
 def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int,
-                  hinges_only: bool = False, base_boxes: int = 0):
+                  hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0, base_boxes: int = 0):
     """Return a namespace with the struct type and kernels specialised for one scene structure.
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
-    (fewer instructions forward and, above all, in the generated adjoint). ``base_boxes``: static collision
-    boxes of the object's base (base_kernels.py); 0 compiles the base contact out."""
+    (fewer instructions forward and, above all, in the generated adjoint). ``palm_boxes``,
+    ``palm_points``: palm collision boxes and object surface samples (palm_kernels.py; free objects only);
+    with none, the palm's fields and code are left out entirely. ``base_boxes``: static
+    collision boxes of the object's base (base_kernels.py); 0 compiles the base contact out."""
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
+    PALM = palm_boxes > 0 and palm_points > 0 and not OBJ_HINGE
+    NB, NS = palm_boxes, palm_points
+    module_options = {"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH}
+    if PALM and NS > 16:
+        module_options["max_unroll"] = NS  # the sample loop must unroll for an exact adjoint
     HINGES_ONLY = bool(hinges_only)
     NBASE = int(base_boxes)
     dtype = float_type
@@ -114,6 +122,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         mu: dtype
         v_slip: dtype
         smooth: dtype
+        if PALM:  # palm boxes (world frame) and the object's surface samples (object frame)
+            palm_pos: wp.array(dtype=vec3)
+            palm_rot: wp.array(dtype=mat33)
+            palm_half: wp.array(dtype=vec3)
+            obj_point_pos: wp.array(dtype=vec3)
+            obj_point_radius: wp.array(dtype=dtype)
+            palm_ke: dtype
+            palm_beta: dtype
+            palm_smooth: dtype
 
     @wp.struct
     class Saved:
@@ -138,6 +155,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         point_jacobian_vjp=contact.point_jacobian_vjp))
     fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
     vecJ_row, link_inertia = chain.vecJ_row, chain.link_inertia
+    palm = None
+    if PALM:
+        palm = build_palm(types.SimpleNamespace(
+            dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, Model=Model, NB=NB, NS=NS, fixed_vec3=fixed_vec3,
+            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus))
+    palm_wrench = palm.palm_wrench if PALM else None
     base = build_base(types.SimpleNamespace(
         dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
         Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
@@ -328,7 +351,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ):
         return saved.finger[ro, f]
 
-    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
+    @wp.kernel(module="unique", module_options=module_options)
     def substep(
         m: Model,
         q: wp.array2d(dtype=dtype),
@@ -370,6 +393,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         # drives the object alone with it
         ext_f = vec3(ext[w, 0], ext[w, 1], ext[w, 2])
         ext_t = vec3(ext[w, 3], ext[w, 4], ext[w, 5])
+        if wp.static(PALM):
+            # the palm's push on the object: like an external wrench, not part of the fingers' contact
+            # wrench and force reported below
+            palm_f, palm_t = palm_wrench(m, xo, Ro, vo, wo)
+            ext_f = ext_f + palm_f
+            ext_t = ext_t + palm_t
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
             damp = params[w, P_DAMPING]
@@ -415,7 +444,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         out[w, b * 7 + 5] = rq[1]
         out[w, b * 7 + 6] = rq[2]
 
-    @wp.kernel(module="unique", module_options={"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH})
+    @wp.kernel(module="unique", module_options=module_options)
     def observe(
         m: Model,
         q: wp.array2d(dtype=dtype),
@@ -452,5 +481,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns.object_sdf, ns.contact_force = contact.object_sdf, contact.contact_force  # for probe kernels (tests)
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
     ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
+    ns.palm = palm  # palm-contact functions (for probe kernels), None without palm contact
     ns.box_sdf, ns.base_contact = base.box_sdf, base.base_contact  # for probe kernels (tests)
     return ns

@@ -7,11 +7,14 @@ module only walks the compiled ``MjModel``. Naming conventions in the MJCF:
 
 * body ``hand`` is the fixed base; each child body starts one finger chain;
 * body ``object`` is the operated object; its joint is a ``hinge`` (e.g. a knob) or ``free`` (e.g. a cube);
+* sites named ``*tip*`` mark fingertips (one per finger, on its last link);
+* box geoms on body ``hand`` that collide with the object's geom in MuJoCo terms (``contype``/``conaffinity``)
+  are the palm's collision boxes (at most :data:`MAX_PALM_BOXES`); a free object rests on and pushes against
+  them. Visual-only palm geoms (``contype="0" conaffinity="0"``) are ignored;
 * optionally, body ``object_base`` (a child of the worldbody, no joint) is the static part of an operable
   object (a stapler's base, the held blade of scissors): the parent of ``object``, whose hinge then turns the
   moving part against it. Its box geoms (at most ``MAX_BASE_BOXES``) are static collision shapes for the
-  finger spheres;
-* sites named ``*tip*`` mark fingertips (one per finger, on its last link).
+  finger spheres.
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ OBJECT_PARAM_DOCS = {
     "joint_stiffness": "spring stiffness of the object joint toward joint_rest (N m/rad or N/m)",
     "joint_rest": "rest position of the object joint's spring (rad or m)",
 }
+MAX_PALM_BOXES = 4  # colliding box geoms on body "hand" (palm contact, free objects only)
+MAX_OBJECT_POINTS = 32  # object surface samples for palm contact
+CYLINDER_RIM_POINTS = 8  # samples per cap rim of a cylinder object (palm contact)
 MAX_PLANES = 32  # convex objects with more faces than this (or non-convex meshes) use a signed-distance grid
 SDF_RESOLUTION = 40  # grid points along the longest padded axis
 MAX_BASE_BOXES = 4  # static collision boxes of an ``object_base`` body (each costs a test per finger sphere)
@@ -65,6 +71,14 @@ class ContactParams:
     slip_velocity: float = 0.2
     surface_smoothing: float = 0.01
     points_per_capsule: int = 4
+    # palm contact (a free object's surface samples against the hand's fixed collision boxes): the same law
+    # with its own stiffness (N/m per sample point) and sharpness (1/m). The fingers' long-range law
+    # (sharpness 200/m: ~ stiffness / sharpness * exp(-sharpness * gap) = 100 N * exp(-200 gap)) would hold
+    # a 0.11 kg cube ~3 cm above the palm; at 1e4/m it is 2 N * exp(-1e4 gap) per sample and the cube rests
+    # ~0.3 mm above it. Damping, friction and slip velocity are the fingers' (``damping`` etc.).
+    palm_stiffness: float = 2.0e4
+    palm_sharpness: float = 1.0e4
+    palm_smoothing: float = 1.0e-3  # m: edge rounding of the palm boxes' smooth signed distance
 
 
 @dataclasses.dataclass
@@ -124,6 +138,20 @@ class SceneModel:
     object_sdf_cell: float  # grid spacing
     gravity: np.ndarray
     timestep: float
+    # palm contact (free objects only; empty arrays when the scene has no colliding palm box): the hand is
+    # fixed, so the boxes are stored in the world frame
+    palm_box_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] centre (m)
+    palm_box_rot: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))  # [B, 3, 3] box -> world
+    palm_box_half: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] half sizes (m)
+    # the object's surface samples tested against the palm boxes (object frame, m): a box's 8 corners, 12
+    # edge midpoints and 6 face centres (radius 0); a sphere's centre with its radius; a cylinder's two
+    # cap centres and 8 points on each cap rim (radius 0); a convex mesh's hull vertices (radius 0)
+    object_point_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [S, 3]
+    object_point_radius: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))  # [S]
+
+    @property
+    def num_palm_boxes(self) -> int:
+        return len(self.palm_box_pos)
     # static collision shapes of the operable object's base (body ``object_base``): boxes, world frame,
     # metres. Empty ([0, ...]) when the scene has no base.
     base_box_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] box centres
@@ -262,6 +290,59 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]
     return SHAPE_SDF, none, np.zeros(2), bound, _sdf_grid(mesh, pad=0.25 * float(np.ptp(mesh.bounds, 0).max()))
 
 
+def _palm_boxes(m, d, hand: int, obj_geom: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World pose and half sizes of the box geoms on body ``hand`` that collide with ``obj_geom``."""
+    import mujoco
+
+    og_type, og_aff = int(m.geom_contype[obj_geom]), int(m.geom_conaffinity[obj_geom])
+    pos, rot, half = [], [], []
+    for g in range(m.ngeom):
+        if m.geom_bodyid[g] != hand:
+            continue
+        if not (int(m.geom_contype[g]) & og_aff or og_type & int(m.geom_conaffinity[g])):
+            continue  # visual only (for this object)
+        if int(m.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_BOX):
+            gname = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+            raise AssetError(f"geom {gname!r} on body 'hand' collides with the object: only boxes are supported "
+                             "as palm collision geometry (or set contype/conaffinity to 0)")
+        pos.append(d.geom_xpos[g].copy())
+        rot.append(d.geom_xmat[g].reshape(3, 3).copy())
+        half.append(m.geom_size[g].copy())
+    if len(pos) > MAX_PALM_BOXES:
+        raise AssetError(f"body 'hand' has {len(pos)} colliding palm boxes; at most {MAX_PALM_BOXES} are supported")
+    if not pos:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3))
+    return np.stack(pos), np.stack(rot), np.stack(half)
+
+
+def _object_points(m, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """Surface samples of the object geom ``g`` for palm contact, in the object body frame (see
+    :attr:`SceneModel.object_point_pos`)."""
+    import mujoco
+    import trimesh
+
+    gtype, size = int(m.geom_type[g]), m.geom_size[g]
+    rot, pos = _quat_to_mat(m.geom_quat[g]), m.geom_pos[g]
+    if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+        return pos[None].copy(), np.array([float(size[0])])
+    if gtype == int(mujoco.mjtGeom.mjGEOM_BOX):
+        # every point of {-1, 0, 1}^3 but the centre: corners, edge midpoints, face centres
+        grid = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)])
+        local = grid * size[:3]
+    elif gtype == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+        ang = 2 * np.pi * np.arange(CYLINDER_RIM_POINTS) / CYLINDER_RIM_POINTS
+        rim = np.stack([size[0] * np.cos(ang), size[0] * np.sin(ang), np.zeros_like(ang)], 1)
+        local = np.concatenate([rim + [0, 0, size[1]], rim - [0, 0, size[1]], [[0, 0, size[1]], [0, 0, -size[1]]]])
+    elif gtype == int(mujoco.mjtGeom.mjGEOM_MESH):
+        mid = m.geom_dataid[g]
+        verts = m.mesh_vert[m.mesh_vertadr[mid] : m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
+        local = trimesh.convex.convex_hull(verts).vertices
+        if len(local) > MAX_OBJECT_POINTS:
+            raise AssetError(f"object mesh hull has {len(local)} vertices; palm contact samples at most "
+                             f"{MAX_OBJECT_POINTS}")
+    else:
+        raise AssetError(f"object geom type {gtype} has no palm-contact samples")
+    return local @ rot.T + pos, np.zeros(len(local))
 def _base_boxes(m, d, obj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World-frame centres [B, 3], rotations [B, 3, 3] and half sizes [B, 3] of the box geoms of body
     ``object_base`` (the parent of ``object``); empty arrays when the object's parent is not named so."""
@@ -386,6 +467,9 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     omass, ocom, oinertia = _body_inertia(m, obj)
     box_pos, box_rot, box_half = _base_boxes(m, d, obj)
     odof = int(m.jnt_dofadr[oj])
+    ogeom = [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]
+    palm = _palm_boxes(m, d, hand, ogeom) if kind == OBJECT_FREE else (np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    samples = _object_points(m, ogeom) if len(palm[0]) else (np.zeros((0, 3)), np.zeros(0))
 
     return SceneModel(
         path=str(path),
@@ -438,6 +522,11 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         object_sdf_cell=sdf_cell,
         gravity=m.opt.gravity.copy(),
         timestep=float(m.opt.timestep),
+        palm_box_pos=palm[0],
+        palm_box_rot=palm[1],
+        palm_box_half=palm[2],
+        object_point_pos=samples[0],
+        object_point_radius=samples[1],
         base_box_pos=box_pos,
         base_box_rot=box_rot,
         base_box_half=box_half,

@@ -144,6 +144,8 @@ class Simulator:
             scene.object_kind,
             scene.object_shape,
             bool((np.asarray(scene.joint_type) == HINGE).all()),
+            *((scene.num_palm_boxes, len(scene.object_point_pos)) if scene.num_palm_boxes and not scene.articulated
+              else ()),
             base_boxes=scene.num_base_boxes,
         )
         self.model = self._make_model()
@@ -187,6 +189,12 @@ class Simulator:
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)
+        if k.palm is not None:
+            m.palm_pos, m.palm_rot = arr(s.palm_box_pos, k.vec3), arr(s.palm_box_rot, k.mat33)
+            m.palm_half = arr(s.palm_box_half, k.vec3)
+            m.obj_point_pos, m.obj_point_radius = arr(s.object_point_pos, k.vec3), arr(s.object_point_radius, wdt)
+            m.palm_ke, m.palm_beta = wdt(c.palm_stiffness), wdt(c.palm_sharpness)
+            m.palm_smooth = wdt(c.palm_smoothing)
         return m
 
     def _zeros(self, *shape):

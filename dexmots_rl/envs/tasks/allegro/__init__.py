@@ -2,11 +2,13 @@
 
 The hand (``assets/allegro_knob.xml``): four fingers of four hinges (index, middle, ring, thumb; joints
 j0-j15 in that order), capsule links (radius 9.8 mm) and fingertip spheres (12 mm), motors of 0.5 N m
-(IsaacGymEnvs' effort), joint damping 0.1, armature 0.001, mounted palm down with the fingers along +x.
+(IsaacGymEnvs' effort), joint damping 0.1, armature 0.001. ``allegro_rotate`` mounts it palm down over a
+knob (``assets/allegro_knob.xml``), ``repose_cube`` palm up with a cube on its colliding palm box
+(``assets/allegro_cube.xml``).
 """
 
 from __future__ import annotations
 
-from . import rotate  # noqa: F401  (registers allegro_rotate)
+from . import repose, rotate  # noqa: F401  (register repose_cube, allegro_rotate)
 
-__all__ = ["rotate"]
+__all__ = ["repose", "rotate"]

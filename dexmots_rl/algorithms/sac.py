@@ -1,0 +1,129 @@
+"""SAC baseline (``dexmots-train algo=sac``): torchrl's ``SACLoss`` + a replay buffer, no simulator gradients.
+
+    dexmots-train algo=sac                                   # screw_claw as SHAC/AHAC train it
+    dexmots-train algo=sac task.goal=pose algo.utd_ratio=0.25 algo.batch_size=512
+
+One iteration (torchrl ``sota-implementations/sac`` style): the ``Collector`` steps the ``num_envs`` worlds
+of ``make_env(task, differentiable=False)`` (observation normalised by ``VecNorm``) for ``frames_per_batch``
+frames (uniform random actions for the first ``init_random_frames``) -> the transitions go into a
+``TensorDictReplayBuffer`` holding only what ``SACLoss`` reads (:data:`TRANSITION_KEYS`; not the sim state,
+reward terms, goals...) -> ``frames_per_batch * utd_ratio`` gradient steps on sampled minibatches (actor,
+twin Q and temperature together) with a polyak update of the target Q after each. The normaliser is frozen
+once the random frames are in, so the stored observations and the ones the networks see later agree.
+Run directory as :mod:`.shac`'s (``metrics.jsonl``, ``checkpoints/last.pt`` for ``dexmots-eval``,
+``metrics.json``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+
+import torch
+from omegaconf import DictConfig
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import ValueOperator
+from torchrl.objectives import SACLoss, SoftUpdate
+from tqdm.auto import tqdm
+
+from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
+    tanh_gaussian_actor
+
+__all__ = ["TRANSITION_KEYS", "build", "store_transitions", "train"]
+
+log = logging.getLogger(__name__)
+
+# all SACLoss reads: a 1e6-frame buffer of every key the env writes was ~1.1 GB, of these ~0.4 GB
+TRANSITION_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
+                   ("next", "terminated"))
+
+
+def build(cfg: DictConfig):
+    """Env (+ its VecNorm), actor, twin-Q loss, target updater, optimiser and replay buffer of a run."""
+    torch.manual_seed(cfg.seed)
+    a = cfg.algo
+    env, vecnorm = make_train_env(cfg, seed=cfg.seed, norm_decay=a.obs_norm_decay, obs_clip=a.obs_clip)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    action_spec = env.action_spec_unbatched
+    actor = tanh_gaussian_actor(obs_dim, action_spec, a.hidden, a.activation, state_scale=True)
+    # Q(s, a): torchrl's MLP concatenates its inputs
+    qvalue = ValueOperator(mlp(obs_dim + action_spec.shape[-1], 1, a.hidden, a.activation),
+                           in_keys=["observation", "action"], out_keys=["state_action_value"])
+    loss = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", alpha_init=a.alpha_init,
+                   target_entropy="auto", delay_qvalue=True)  # target entropy: -action dim
+    loss.make_value_estimator(gamma=a.gamma)
+    updater = SoftUpdate(loss, tau=a.tau)
+    optimizer = torch.optim.Adam([
+        {"params": loss.actor_network_params.flatten_keys().values(), "lr": a.actor_lr},
+        {"params": loss.qvalue_network_params.flatten_keys().values(), "lr": a.critic_lr},
+        {"params": [loss.log_alpha], "lr": a.alpha_lr},
+    ])
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(int(a.buffer_size), device=cfg.device),
+                                    batch_size=a.batch_size)
+    return env, vecnorm, actor, loss, updater, optimizer, buffer
+
+
+def store_transitions(buffer: TensorDictReplayBuffer, data) -> None:
+    """Add a collected ``[worlds, time]`` batch to ``buffer``, only the :data:`TRANSITION_KEYS`, flattened."""
+    buffer.extend(data.select(*TRANSITION_KEYS).reshape(-1))
+
+
+def train(cfg: DictConfig) -> dict:
+    """Train a SAC run; returns the final metrics dict (also written to ``metrics.json``)."""
+    a = cfg.algo
+    writer = RunWriter(cfg)
+    env, vecnorm, actor, loss, updater, optimizer, buffer = build(cfg)
+    policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
+    frames_per_batch = a.frames_per_batch
+    iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=iterations * frames_per_batch,
+                          init_random_frames=int(a.init_random_frames), device=cfg.device,
+                          exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+    updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
+    counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "updates": 0}
+    bar = tqdm(total=iterations, desc=f"sac {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
+    t_start = time.perf_counter()
+    for data in collector:
+        store_transitions(buffer, data)
+        counters["iteration"] += 1
+        counters["env_steps"] += data.numel()
+        stats = {"loss_actor": 0.0, "loss_qvalue": 0.0, "loss_alpha": 0.0}
+        learning = counters["env_steps"] >= a.init_random_frames
+        if learning:
+            if not vecnorm.frozen:  # statistics of the random-action frames, then fixed (see the docstring)
+                vecnorm.freeze()
+            for _ in range(updates_per_batch):
+                out = loss(buffer.sample())
+                total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+                optimizer.zero_grad()
+                total.backward()
+                optimizer.step()
+                updater.step()
+                for key in stats:
+                    stats[key] += float(out[key].detach())
+            counters["updates"] += updates_per_batch
+        collector.update_policy_weights_()
+
+        counters["wall_clock_s"] = time.perf_counter() - t_start
+        n = updates_per_batch if learning else 1
+        row = {**batch_metrics(data, counters), **{k: v / n for k, v in stats.items()},
+               "alpha": float(loss.log_alpha.detach().exp()), "updates": counters["updates"]}
+        writer.log(row)
+        bar.update(1)
+        bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
+                        reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
+        last = counters["iteration"] == iterations
+        evaluate_now = cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last
+        if last or counters["iteration"] % cfg.checkpoint_every == 0 or evaluate_now:
+            sync_obs_norm(policy, vecnorm)
+            writer.checkpoint(counters, {"policy": policy, "loss": loss, "vecnorm": vecnorm}, {"optimizer": optimizer})
+            if evaluate_now:
+                writer.evaluate(policy, counters, final=False)
+    bar.close()
+    collector.shutdown()
+    sync_obs_norm(policy, vecnorm)
+    return writer.evaluate(policy, counters)
