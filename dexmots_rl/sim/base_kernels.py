@@ -40,7 +40,8 @@ def build_base(t) -> types.SimpleNamespace:
         """Smooth signed distance and outward unit normal of box b at p (box frame), packed (d, n): the
         log-sum-exp smooth max of the six face distances g = +-p_i - h_i (h: half sizes), d = hi + s log
         sum_k exp((g_k - hi) / s), n = normalize(sum_k exp((g_k - hi) / s) n_k), s = surface smoothing.
-        d >= max_k g_k, equal to it on a face away from edges."""
+        d >= max_k g_k; on a face it exceeds the face distance by s ln(1 + sum of the other faces'
+        weights), negligible once the other faces are a few s below (thin boxes: about s e^-(2 h / s))."""
         h = fixed_vec3(m.box_half, b)
         g0 = p[0] - h[0]
         g1 = -p[0] - h[0]
