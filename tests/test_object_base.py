@@ -111,7 +111,7 @@ def _box_sdf_kernel(ns):
     def probe(m: ns.Model, b: int, p: wp.array(dtype=ns.vec3), weight: wp.array(dtype=ns.vec4),
               out: wp.array(dtype=wp.float64)):
         i = wp.tid()
-        out[i] = wp.dot(ns.box_sdf(m, b, p[i]), weight[i])
+        out[i] = wp.dot(ns.base.box_sdf(m, b, p[i]), weight[i])
 
     return probe
 

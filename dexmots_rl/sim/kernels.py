@@ -139,6 +139,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
         finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
         contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
+        # (contact and law: with an object base, base_kernels' slots follow the sample spheres')
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
         law: wp.array2d(dtype=mat43)  # contact_force: n, cp, v_rel and (softplus, its slope, slip norm)
@@ -161,11 +162,13 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, Model=Model, NB=NB, NS=NS, fixed_vec3=fixed_vec3,
             fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus))
     palm_wrench = palm.palm_wrench if PALM else None
-    base = build_base(types.SimpleNamespace(
-        dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
-        Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
-        fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33))
-    link_base_contacts = base.link_base_contacts
+    base = None
+    if NBASE > 0:  # built only when used: warp resolves every function a kernel names, even in a static branch
+        base = build_base(types.SimpleNamespace(
+            dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
+            Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
+            fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33))
+    link_base_contacts = base.link_base_contacts if NBASE > 0 else None
 
     @wp.func
     def limit_ramp(x: dtype):
@@ -482,5 +485,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
     ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
     ns.palm = palm  # palm-contact functions (for probe kernels), None without palm contact
-    ns.box_sdf, ns.base_contact = base.box_sdf, base.base_contact  # for probe kernels (tests)
+    ns.base = base  # base-contact functions (box_sdf, base_contact: for probe kernels), None without a base
     return ns

@@ -50,7 +50,7 @@ class StepOutput(tuple):
 
     wrench: [N, 6] mean over substeps of the net contact force and torque on the object (world frame,
     torque about the object origin); contact_force: [N] mean over substeps of the summed normal contact
-    force magnitudes; body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object;
+    force magnitudes (finger-object contacts and, in scenes with an ``object_base``, finger-base contacts); body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object;
     fingertips: [N, F, 3].
     """
 
