@@ -4,7 +4,6 @@ the replay buffer's keys, the exported policy's normaliser."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 import torch

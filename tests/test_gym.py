@@ -6,7 +6,6 @@ import doctest
 
 import gymnasium as gym
 import numpy as np
-import pytest
 from gymnasium.utils.env_checker import check_env
 
 import dexmots_rl.envs.gym as dex_gym

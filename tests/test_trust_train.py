@@ -12,14 +12,13 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 from hydra import compose, initialize_config_dir
 
 import dexmots_rl.algorithms.shac as shac
 from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
 from dexmots_rl.algorithms.rundir import RunDirLock
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from test_train import TINY_SHAC, _cfg, _rows
+from test_train import _cfg, _rows
 
 
 def _source_env() -> dict:
