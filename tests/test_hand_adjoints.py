@@ -11,7 +11,7 @@ import torch
 import warp as wp
 
 from dexmots_rl.sim import Simulator
-from dexmots_rl.sim.model import SHAPE_SDF
+from dexmots_rl.sim.mjcf_shapes import SHAPE_SDF
 
 EPS = 1e-6
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dexmots_rl.sim import Simulator, load_scene
-from dexmots_rl.sim.model import SHAPE_SDF
+from dexmots_rl.sim.mjcf_shapes import SHAPE_SDF
 
 ASSET = Path(__file__).parent / "assets" / "u_block.xml"
 

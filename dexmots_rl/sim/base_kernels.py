@@ -30,34 +30,18 @@ __all__ = ["build_base"]
 def build_base(t) -> types.SimpleNamespace:
     """The base-contact functions for the types, scene constants and functions in ``t`` (attributes: dtype,
     vec3, vec4, mat33, vecJ, matJ3, vecC, Model, Saved, J, P, NB (boxes), NPTS (sample spheres in the
-    hand), contact_force, unit_j, fixed_vec3, fixed_mat33)."""
-    dtype, vec3, vec4, mat33, vecJ, matJ3 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3
+    hand), contact_force, unit_j, fixed_vec3, fixed_mat33, smooth_box)."""
+    dtype, vec3, mat33, vecJ, matJ3 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ3
     Model, Saved, J, P, NB, NPTS = t.Model, t.Saved, t.J, t.P, t.NB, t.NPTS
     contact_force, unit_j, fixed_vec3, fixed_mat33 = t.contact_force, t.unit_j, t.fixed_vec3, t.fixed_mat33
+    smooth_box = t.smooth_box
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
-        """Smooth signed distance and outward unit normal of box b at p (box frame), packed (d, n): the
-        log-sum-exp smooth max of the six face distances g = +-p_i - h_i (h: half sizes), d = hi + s log
-        sum_k exp((g_k - hi) / s), n = normalize(sum_k exp((g_k - hi) / s) n_k), s = surface smoothing.
-        d >= max_k g_k; on a face it exceeds the face distance by s ln(1 + sum of the other faces'
-        weights), negligible once the other faces are a few s below (thin boxes: about s e^-(2 h / s))."""
-        h = fixed_vec3(m.box_half, b)
-        g0 = p[0] - h[0]
-        g1 = -p[0] - h[0]
-        g2 = p[1] - h[1]
-        g3 = -p[1] - h[1]
-        g4 = p[2] - h[2]
-        g5 = -p[2] - h[2]
-        hi = wp.max(wp.max(wp.max(g0, g1), wp.max(g2, g3)), wp.max(g4, g5))
-        w0 = wp.exp((g0 - hi) / m.smooth)
-        w1 = wp.exp((g1 - hi) / m.smooth)
-        w2 = wp.exp((g2 - hi) / m.smooth)
-        w3 = wp.exp((g3 - hi) / m.smooth)
-        w4 = wp.exp((g4 - hi) / m.smooth)
-        w5 = wp.exp((g5 - hi) / m.smooth)
-        n = wp.normalize(vec3(w0 - w1, w2 - w3, w4 - w5))
-        return vec4(hi + m.smooth * wp.log(w0 + w1 + w2 + w3 + w4 + w5), n[0], n[1], n[2])
+        """Smooth signed distance and outward unit normal of base box b at p (box frame), packed (d, n):
+        :func:`contact_kernels.smooth_box` with the contact's surface smoothing (edges and corners rounded
+        by it; on a face, exact once the other faces are a few smoothing lengths below)."""
+        return smooth_box(fixed_vec3(m.box_half, b), p, m.smooth)
 
     @wp.func
     def base_near(m: Model, x: vec3, R: mat33, pi: int, b: int):

@@ -13,7 +13,8 @@ import types
 
 import warp as wp
 
-from .model import HINGE, SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
+from .mjcf_shapes import SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
+from .model import HINGE
 
 __all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "build_contact"]
 
@@ -98,6 +99,35 @@ def build_contact(t) -> types.SimpleNamespace:
         if gap > dtype(-LSE_CUTOFF) * m.smooth:
             return wp.exp(gap / m.smooth)
         return dtype(0.0)
+
+    @wp.func
+    def lse_weight(g: dtype, hi: dtype, s: dtype):
+        """exp((g - hi) / s), 0 when g is more than LSE_CUTOFF smoothing lengths below the max hi."""
+        if g - hi > dtype(-LSE_CUTOFF) * s:
+            return wp.exp((g - hi) / s)
+        return dtype(0.0)
+
+    @wp.func
+    def smooth_box(h: vec3, q: vec3, s: dtype):
+        """Smooth signed distance and outward unit normal (box frame) of point q to the box of half sizes h,
+        packed (d, n): the log-sum-exp smooth max (smoothing s) of the six face distances g = +-q_i - h_i,
+        d = hi + s log sum_k exp((g_k - hi) / s) >= max_k g_k, n the normalised gradient; faces far below
+        the max are dropped (lse_weight). The palm's and an object base's boxes both use it."""
+        gx0 = q[0] - h[0]
+        gx1 = -q[0] - h[0]
+        gy0 = q[1] - h[1]
+        gy1 = -q[1] - h[1]
+        gz0 = q[2] - h[2]
+        gz1 = -q[2] - h[2]
+        hi = wp.max(wp.max(wp.max(gx0, gx1), wp.max(gy0, gy1)), wp.max(gz0, gz1))
+        wx0 = lse_weight(gx0, hi, s)
+        wx1 = lse_weight(gx1, hi, s)
+        wy0 = lse_weight(gy0, hi, s)
+        wy1 = lse_weight(gy1, hi, s)
+        wz0 = lse_weight(gz0, hi, s)
+        wz1 = lse_weight(gz1, hi, s)
+        n = wp.normalize(vec3(wx0 - wx1, wy0 - wy1, wz0 - wz1))
+        return vec4(hi + s * wp.log(wx0 + wx1 + wy0 + wy1 + wz0 + wz1), n[0], n[1], n[2])
 
     @wp.func
     def polytope_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
@@ -347,4 +377,4 @@ def build_contact(t) -> types.SimpleNamespace:
     return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,
                                  point_jacobian_vjp=point_jacobian_vjp,
                                  object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
-                                 sphere_near=sphere_near)
+                                 sphere_near=sphere_near, smooth_box=smooth_box)

@@ -160,14 +160,14 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     if PALM:
         palm = build_palm(types.SimpleNamespace(
             dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, Model=Model, NB=NB, NS=NS, fixed_vec3=fixed_vec3,
-            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus))
+            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus, smooth_box=contact.smooth_box))
     palm_wrench = palm.palm_wrench if PALM else None
     base = None
     if NBASE > 0:  # built only when used: warp resolves every function a kernel names, even in a static branch
         base = build_base(types.SimpleNamespace(
             dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
             Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
-            fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33))
+            fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, smooth_box=contact.smooth_box))
     link_base_contacts = base.link_base_contacts if NBASE > 0 else None
 
     @wp.func

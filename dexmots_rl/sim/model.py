@@ -9,11 +9,11 @@ module only walks the compiled ``MjModel``. Naming conventions in the MJCF:
 * body ``object`` is the operated object; its joint is a ``hinge`` (e.g. a knob) or ``free`` (e.g. a cube);
 * sites named ``*tip*`` mark fingertips (one per finger, on its last link);
 * box geoms on body ``hand`` that collide with the object's geom in MuJoCo terms (``contype``/``conaffinity``)
-  are the palm's collision boxes (at most :data:`MAX_PALM_BOXES`); a free object rests on and pushes against
+  are the palm's collision boxes (at most ``mjcf_shapes.MAX_PALM_BOXES``); a free object rests on and pushes against
   them. Visual-only palm geoms (``contype="0" conaffinity="0"``) are ignored;
 * optionally, body ``object_base`` (a child of the worldbody, no joint) is the static part of an operable
   object (a stapler's base, the held blade of scissors): the parent of ``object``, whose hinge then turns the
-  moving part against it. Its box geoms (at most ``MAX_BASE_BOXES``) are static collision shapes for the
+  moving part against it. Its box geoms (at most ``mjcf_shapes.MAX_BASE_BOXES``) are static collision shapes for the
   finger spheres.
 """
 
@@ -24,17 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .mjcf_shapes import (  # noqa: F401  (the shape and limit constants are part of this module's surface)
-    CYLINDER_RIM_POINTS,
-    MAX_BASE_BOXES,
-    MAX_OBJECT_POINTS,
-    MAX_PALM_BOXES,
-    MAX_PLANES,
-    SDF_RESOLUTION,
-    SHAPE_CONVEX,
-    SHAPE_CYLINDER,
-    SHAPE_SDF,
-    SHAPE_SPHERE,
+from .mjcf_shapes import (
     AssetError,
     _base_boxes,
     _body_inertia,

@@ -23,48 +23,28 @@ import types
 
 import warp as wp
 
-from .contact_kernels import CONTACT_CUTOFF, LSE_CUTOFF
+from .contact_kernels import CONTACT_CUTOFF
 
 __all__ = ["build_palm"]
 
 
 def build_palm(t) -> types.SimpleNamespace:
     """The palm-contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3,
-    vec4, mat33, Model, NB (palm boxes), NS (object samples), fixed_vec3, fixed_mat33, fixed, softplus)."""
+    vec4, mat33, Model, NB (palm boxes), NS (object samples), fixed_vec3, fixed_mat33, fixed, softplus,
+    smooth_box)."""
     dtype, vec3, vec4, mat33, Model = t.dtype, t.vec3, t.vec4, t.mat33, t.Model
     NB, NS = t.NB, t.NS
     fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
-
-    @wp.func
-    def lse_weight(g: dtype, hi: dtype, s: dtype):
-        if g - hi > dtype(-LSE_CUTOFF) * s:
-            return wp.exp((g - hi) / s)
-        return dtype(0.0)
+    smooth_box = t.smooth_box
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
         """Smooth signed distance of world point p to palm box b and the outward unit normal (world),
         packed (d, n)."""
         R = fixed_mat33(m.palm_rot, b)
-        h = fixed_vec3(m.palm_half, b)
-        q = wp.transpose(R) * (p - fixed_vec3(m.palm_pos, b))
-        gx0 = q[0] - h[0]
-        gx1 = -q[0] - h[0]
-        gy0 = q[1] - h[1]
-        gy1 = -q[1] - h[1]
-        gz0 = q[2] - h[2]
-        gz1 = -q[2] - h[2]
-        hi = wp.max(wp.max(wp.max(gx0, gx1), wp.max(gy0, gy1)), wp.max(gz0, gz1))
-        s = m.palm_smooth
-        wx0 = lse_weight(gx0, hi, s)
-        wx1 = lse_weight(gx1, hi, s)
-        wy0 = lse_weight(gy0, hi, s)
-        wy1 = lse_weight(gy1, hi, s)
-        wz0 = lse_weight(gz0, hi, s)
-        wz1 = lse_weight(gz1, hi, s)
-        total = wx0 + wx1 + wy0 + wy1 + wz0 + wz1
-        n = R * wp.normalize(vec3(wx0 - wx1, wy0 - wy1, wz0 - wz1))
-        return vec4(hi + s * wp.log(total), n[0], n[1], n[2])
+        d = smooth_box(fixed_vec3(m.palm_half, b), wp.transpose(R) * (p - fixed_vec3(m.palm_pos, b)), m.palm_smooth)
+        n = R * vec3(d[1], d[2], d[3])
+        return vec4(d[0], n[0], n[1], n[2])
 
     @wp.func
     def palm_point(m: Model, b: int, p: vec3, rad: dtype, xo: vec3, vo: vec3, wo: vec3):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .model import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SPHERE
+from .mjcf_shapes import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SPHERE
 
 __all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
            "background_kernel", "render_kernel"]

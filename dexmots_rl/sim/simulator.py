@@ -18,7 +18,8 @@ import warp as wp
 from tensordict import TensorDict
 
 from .kernels import build_kernels
-from .model import HINGE, MAX_PLANES, ContactParams, SceneModel
+from .mjcf_shapes import MAX_PLANES
+from .model import HINGE, ContactParams, SceneModel
 from .stepper import Trajectory
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep", "check_device"]

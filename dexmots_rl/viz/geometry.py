@@ -101,7 +101,7 @@ def _mjcf_object_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
 def _object_mesh(scene) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
-    from ..sim.model import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SPHERE
+    from ..sim.mjcf_shapes import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SPHERE
 
     shape = int(scene.object_shape)
     try:
