@@ -34,7 +34,7 @@ def config_dir() -> Path:
     spec = importlib.util.find_spec("dexmots_rl.configs")
     if spec is not None and spec.submodule_search_locations:
         return Path(next(iter(spec.submodule_search_locations)))
-    return Path(__file__).resolve().parents[2] / "configs"  # a source tree on sys.path without an install
+    return root / "configs"
 
 
 CONFIG_DIR = config_dir()

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import torch
 from tensordict import TensorDict
@@ -46,7 +47,8 @@ KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulo
 class KnobTurnConfig(TaskConfig):
     """Fields of every knob-turning task (defaults: the claw's; each task sets its own)."""
 
-    initial: str = "grasp"  # the start pose: one of the task's INITIAL_POSES
+    initial: str = "grasp"  # the start pose: one of the task's initial_choices
+    initial_choices: ClassVar[tuple[str, ...]] = ("grasp",)  # the start poses the task's env knows
     goal_range: tuple[float, float] = (math.pi / 4, math.pi / 2)  # |goal angle| (rad), random sign
     damping_range: tuple[float, float] = (0.3, 0.7)  # knob joint damping (N m s/rad), drawn per episode
     friction_range: tuple[float, float] = (0.2, 1.0)  # knob joint Coulomb friction (N m), drawn per episode
@@ -60,6 +62,8 @@ class KnobTurnConfig(TaskConfig):
 
     def validate(self) -> "KnobTurnConfig":
         super().validate()
+        if self.initial not in self.initial_choices:
+            raise ValueError(f"task.initial must be one of {', '.join(self.initial_choices)}, got {self.initial!r}")
         self.goal_range = check_range("task.goal_range", self.goal_range)
         self.damping_range = check_range("task.damping_range", self.damping_range)
         self.friction_range = check_range("task.friction_range", self.friction_range)

@@ -40,18 +40,13 @@ class ScrewClawConfig(KnobTurnConfig):
     """screw_claw's defaults: the task dexmots-train trains (see the module docstring)."""
 
     name: str = "screw_claw"
+    initial_choices = tuple(INITIAL_POSES)
     initial: str = "grasp"  # open (fingers spread) | grasp (resting on the knob, as the paper starts)
     open_angle: float = math.radians(60.0)  # rad: proximal spread of the "open" start
     torque_scale: float = 5.0  # N m; 1 N m made policies let go (squeezing puts 20-50 N m on the hinge)
     # lambda_f 0.1 let the fingers flick the knob and let go (36 % success); 1.0 keeps them on it
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=1.0))
-
-    def validate(self) -> "ScrewClawConfig":
-        super().validate()
-        if self.initial not in INITIAL_POSES:
-            raise ValueError(f"task.initial must be one of {', '.join(INITIAL_POSES)}, got {self.initial!r}")
-        return self
 
 
 def scripted_claw_action(desired_goal: torch.Tensor, squeeze: float = 0.6, twist: float = 0.4) -> torch.Tensor:

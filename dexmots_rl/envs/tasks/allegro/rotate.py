@@ -48,6 +48,7 @@ class AllegroRotateConfig(KnobTurnConfig):
     """allegro_rotate's defaults: the task dexmots-train trains (see the module docstring)."""
 
     name: str = "allegro_rotate"
+    initial_choices = tuple(INITIAL_POSES)
     initial: str = "grasp"  # grasp (fingertips on the knob) | open (a few cm away)
     goal_range: tuple[float, float] = (0.2, 0.5)  # |goal angle| (rad), random sign
     damping_range: tuple[float, float] = (0.005, 0.02)  # knob joint damping (N m s/rad)
@@ -58,12 +59,6 @@ class AllegroRotateConfig(KnobTurnConfig):
     fingertip_scale: float = 0.05  # m: the hand is centimetres across
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
-
-    def validate(self) -> "AllegroRotateConfig":
-        super().validate()
-        if self.initial not in INITIAL_POSES:
-            raise ValueError(f"task.initial must be one of {', '.join(INITIAL_POSES)}, got {self.initial!r}")
-        return self
 
 
 class AllegroRotateEnv(KnobTurnEnv):
