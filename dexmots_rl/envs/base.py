@@ -2,7 +2,8 @@
 
 The full physical state of every world travels in the TensorDict under ``"sim"``
 (``("sim", "joint_q")``, ``("sim", "joint_qd")``, and the named physical parameters under
-``("sim", "params", name)``, e.g. ``"joint_damping"``), so a step is a pure function of its input TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
+``("sim", "params", name)``, e.g. ``"joint_damping"``), so a step is a pure function of its input
+TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
 (rewards, observations) back to the actions and the input state through :class:`~dexmots_rl.sim.SimStep`.
 
 Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward`,
@@ -17,8 +18,8 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from tensordict.nn import TensorDictModuleBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
