@@ -46,14 +46,16 @@ P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
 
 @functools.lru_cache(maxsize=None)
 def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int,
-                  hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0, base_boxes: int = 0):
+                  hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0, base_boxes: int = 0,
+                  object_limited: bool = False):
     """Return a namespace with the struct type and kernels specialised for one scene structure.
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
     (fewer instructions forward and, above all, in the generated adjoint). ``palm_boxes``,
     ``palm_points``: palm collision boxes and object surface samples (palm_kernels.py; free objects only);
     with none, the palm's fields and code are left out entirely. ``base_boxes``: static
-    collision boxes of the object's base (base_kernels.py); 0 compiles the base contact out."""
+    collision boxes of the object's base (base_kernels.py); 0 compiles the base contact out.
+    ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out)."""
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
     PALM = palm_boxes > 0 and palm_points > 0 and not OBJ_HINGE
@@ -63,6 +65,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         module_options["max_unroll"] = NS  # the sample loop must unroll for an exact adjoint
     HINGES_ONLY = bool(hinges_only)
     NBASE = int(base_boxes)
+    OBJ_LIMITED = bool(object_limited) and OBJ_HINGE
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -105,6 +108,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         obj_inertia: mat33
         obj_axial_inertia: dtype  # hinge: inertia about the axis (constant, the body turns about it) + armature
         obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
+        if OBJ_LIMITED:  # the hinge object's range (rad) and its limit spring (N m/rad)
+            obj_lower: dtype
+            obj_upper: dtype
+            obj_limit_ke: dtype
         planes: wp.array(dtype=vec4)
         sdf: wp.array3d(dtype=dtype)  # signed distance grid for non-convex meshes
         sdf_origin: vec3
@@ -178,6 +185,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         if x < dtype(LIMIT_WIDTH):
             return x * x * dtype(LIMIT_CURVE)
         return x - dtype(LIMIT_OFFSET)
+
+    @wp.func
+    def limit_slope(x: dtype):
+        # d limit_ramp / dx
+        if x <= dtype(0.0):
+            return dtype(0.0)
+        if x < dtype(LIMIT_WIDTH):
+            return x * dtype(2.0 * LIMIT_CURVE)
+        return dtype(1.0)
 
     @wp.func
     def axis_angle(a: vec3, t: dtype):
@@ -412,7 +428,14 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             torque = torque - damp * th_d - params[w, P_FRICTION] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
             # the spring is integrated implicitly like the damping (stable at any stiffness)
             torque = torque - spring * (th + dt * th_d - params[w, P_REST])
-            v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp + dt * dt * spring)
+            stiff = spring
+            if wp.static(OBJ_LIMITED):
+                # the range's limit spring, linearised at the predicted angle like the joint spring: implicit,
+                # so it can be stiff enough that a finger cannot push the part through its stop
+                th_p = th + dt * th_d
+                torque = torque + m.obj_limit_ke * (limit_ramp(m.obj_lower - th_p) - limit_ramp(th_p - m.obj_upper))
+                stiff = stiff + m.obj_limit_ke * (limit_slope(m.obj_lower - th_p) + limit_slope(th_p - m.obj_upper))
+            v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp + dt * dt * stiff)
             qd[ro, o] = v_new
             q[ro, o] = q[r, o] + dt * v_new
         else:

@@ -157,6 +157,9 @@ class SceneModel:
     base_box_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] box centres
     base_box_rot: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))  # [B, 3, 3] box-to-world
     base_box_half: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] half sizes
+    # the hinge object's range (rad; MJCF joint range when limited): a stiff implicit limit spring holds it
+    object_limited: bool = False
+    object_range: tuple[float, float] = (-1e9, 1e9)
 
     @property
     def num_base_boxes(self) -> int:
@@ -357,4 +360,6 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         base_box_pos=box_pos,
         base_box_rot=box_rot,
         base_box_half=box_half,
+        object_limited=bool(m.jnt_limited[oj]) and kind == OBJECT_HINGE,
+        object_range=(float(m.jnt_range[oj, 0]), float(m.jnt_range[oj, 1])) if m.jnt_limited[oj] else (-1e9, 1e9),
     )

@@ -24,6 +24,9 @@ from .stepper import Trajectory
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep", "check_device"]
 
+# the object's range stop: implicit (stable at any stiffness), k = axial inertia x (1000 rad/s)^2; the
+# stapler's arm (3.6e-4 kg m^2) gets 360 N m/rad and goes ~0.01 rad past its stop under 1 N m
+OBJECT_LIMIT_FREQUENCY = 1000.0  # rad/s
 LIMIT_FREQUENCY = 60.0  # rad/s: joint-limit springs are as stiff as a 60 rad/s oscillator on the joint's inertia
 
 
@@ -148,6 +151,7 @@ class Simulator:
             *((scene.num_palm_boxes, len(scene.object_point_pos)) if scene.num_palm_boxes and not scene.articulated
               else ()),
             base_boxes=scene.num_base_boxes,
+            object_limited=scene.object_limited,
         )
         self.model = self._make_model()
 
@@ -179,6 +183,9 @@ class Simulator:
         m.obj_axial_inertia = wdt(axis @ np.asarray(s.object_inertia) @ axis + s.object_mass * arm @ arm
                                   + s.object_armature)
         m.obj_bound = wdt(s.object_bound)
+        if s.object_limited:
+            m.obj_lower, m.obj_upper = wdt(s.object_range[0]), wdt(s.object_range[1])
+            m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)

@@ -10,8 +10,9 @@ success_threshold``; evaluation reads it at the last step of the episode.
 
 Reference (what the policy tracks, paper §4): without a plan bank, the knob angle ramps linearly from 0
 to the goal over ``ramp_steps`` env steps and then holds; the reference torque about the hinge is the
-one the *nominal* knob (the MJCF's damping and friction, not the episode's randomised ones: the plan
-does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after;
+one the *nominal* knob (the MJCF's damping, friction and spring, not the episode's randomised ones: the
+plan does not know them) needs for that motion, ``d ω + f tanh(ω / 0.05)`` during the ramp and 0 after,
+plus ``k (θ̄ - θ_rest)`` for a sprung part;
 ``reference_torque="episode"`` computes it with the episode's drawn damping and friction instead (the
 policy is told how hard the knob is to turn, while its pose-only goal modes still are not). With
 ``references=`` (plans from ``dexmots-plan``) each world follows one planned trajectory instead and its
@@ -98,9 +99,11 @@ class KnobTurnEnv(DexEnv):
             return torch.as_tensor(x, dtype=self.dtype, device=self.device)
 
         self._lower, self._upper = t(scene.dof_lower), t(scene.dof_upper)
+        # the knobs have no spring: their reference torque (and its float rounding) stays as it was
+        self._sprung = scene.object_stiffness > 0 or "joint_stiffness" in self._param_ranges()
         self._axis = t(scene.object_base_rot @ scene.object_axis)
         self._knob_pos = t(scene.object_base_pos)
-        self._nominal = (scene.object_damping, scene.object_friction)
+        self._nominal = (scene.object_damping, scene.object_friction, scene.object_stiffness, scene.object_rest)
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
                                                 device=self.device)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
@@ -112,12 +115,21 @@ class KnobTurnEnv(DexEnv):
     def _param_ranges(self) -> dict:
         return {"joint_damping": self.config.damping_range, "joint_friction": self.config.friction_range}
 
+    def sample_start(self, n: int) -> torch.Tensor:
+        """The hand's start poses of ``n`` episodes [n, nu], before the joint noise: :meth:`start_pose`."""
+        return self._open_pose.expand(n, -1)
+
+    def sample_goal(self, n: int) -> torch.Tensor:
+        """Goal angles of ``n`` episodes [n, 1]: magnitude in ``goal_range``, random sign."""
+        sign = torch.where(self._rand(n, 1) < 0.5, -1.0, 1.0).to(self.dtype)
+        return sign * self._uniform(n, self.goal_range)
+
     def sample_initial(self, n: int) -> dict:
         noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
-        hand = torch.minimum(torch.maximum(self._open_pose + noise, self._lower), self._upper)
-        q = torch.cat([hand, torch.zeros(n, 1, dtype=self.dtype, device=self.device)], -1)
-        sign = torch.where(self._rand(n, 1) < 0.5, -1.0, 1.0).to(self.dtype)
-        goal = sign * self._uniform(n, self.goal_range)
+        hand = torch.minimum(torch.maximum(self.sample_start(n) + noise, self._lower), self._upper)
+        rest = torch.full((n, 1), float(self.sim.scene.object_q0[0]), dtype=self.dtype, device=self.device)
+        q = torch.cat([hand, rest], -1)
+        goal = self.sample_goal(n)
         ref_index = self.sample_ref_index(n)
         if self.reference_bank is not None:
             goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
@@ -140,11 +152,14 @@ class KnobTurnEnv(DexEnv):
         angle = goal.unsqueeze(1) * frac
         speed = goal.unsqueeze(1) / (self.ramp_steps * self.sim.dt)
         moving = ((steps >= 1) & (steps <= self.ramp_steps)).unsqueeze(-1)
-        damping, friction = self._nominal
+        damping, friction, stiffness, rest = self._nominal
         if self.config.reference_torque == "episode":
-            damping = td[("sim", "params", "joint_damping")].to(self.dtype)[:, None]  # [N, 1, 1]
-            friction = td[("sim", "params", "joint_friction")].to(self.dtype)[:, None]
+            damping, friction, stiffness, rest = (td[("sim", "params", name)].to(self.dtype)[:, None]  # [N, 1, 1]
+                                                  for name in ("joint_damping", "joint_friction", "joint_stiffness",
+                                                               "joint_rest"))
         torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
+        if self._sprung:  # a sprung part (spray trigger, stapler arm) is held against its spring
+            torque = torque + stiffness * (angle - rest)
         return angle, torque
 
     def reference(self, td, steps: torch.Tensor) -> TensorDict:

@@ -4,11 +4,12 @@ The hand (``assets/allegro_knob.xml``): four fingers of four hinges (index, midd
 j0-j15 in that order), capsule links (radius 9.8 mm) and fingertip spheres (12 mm), motors of 0.5 N m
 (IsaacGymEnvs' effort), joint damping 0.1, armature 0.001. ``allegro_rotate`` mounts it palm down over a
 knob (``assets/allegro_knob.xml``), ``repose_cube`` palm up with a cube on its colliding palm box
-(``assets/allegro_cube.xml``).
+(``assets/allegro_cube.xml``); ``spray_bottle``, ``scissors`` and ``stapler`` palm down over an operable
+object (``assets/allegro_<object>.xml``, :mod:`.operate`).
 """
 
 from __future__ import annotations
 
-from . import repose, rotate  # noqa: F401  (register repose_cube, allegro_rotate)
+from . import repose, rotate, scissors, spray_bottle, stapler  # noqa: F401  (register the tasks)
 
-__all__ = ["repose", "rotate"]
+__all__ = ["repose", "rotate", "scissors", "spray_bottle", "stapler"]
