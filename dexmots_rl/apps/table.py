@@ -188,7 +188,7 @@ def _budget_text(budget: dict, rows: list[dict]) -> str:
         parts.append(f"{budget['wall_clock_s']:g} s of training wall-clock (evaluations excluded)")
     if budget.get("env_steps") is not None:
         parts.append(f"{budget['env_steps']:,} env steps")
-    text = ("Budget per run: " + " or ".join(parts) + ", whichever comes first" if parts else
+    text = ("Budget per run: " + " or ".join(parts) + " (or the method's own schedule, if it ends first)" if parts else
             "Budget per run: none (each method's own schedule: algo.iterations / algo.total_frames)")
     stops = {}
     for r in rows:

@@ -97,7 +97,7 @@ def plot_action_spaces(rows: Iterable[dict], task: str, title: str, methods: Seq
     x = np.arange(len(actions))
     for i, (method, label) in enumerate(methods):
         runs = [values.get((method, a), []) for a in actions]
-        means = [statistics.fmean(v) if v else 0.0 for v in runs]
+        means = [statistics.fmean(v) if v else float("nan") for v in runs]  # no bar where nothing finished
         sds = [statistics.stdev(v) if len(v) > 1 else 0.0 for v in runs]
         ax.bar(x + (i - (len(methods) - 1) / 2) * width, means, width, yerr=sds, capsize=3, label=label)
     ax.set_xticks(x, list(actions))

@@ -86,7 +86,7 @@ def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> d
     if metrics is not None:
         budget = metrics.get("budget") or {}
         reached = time_to_success(learning_curve(run.run_dir, metrics), threshold)
-        row.update(success=metrics["success_rate"], episodes=metrics.get("episodes"),
+        row.update(success=round(metrics["success_rate"], 4), episodes=metrics.get("episodes"),
                    wall_clock_s=metrics.get("train_wall_clock_s"), env_steps=metrics.get("env_steps"),
                    stopped_by=budget.get("stopped_by"), budget_wall_clock_s=budget.get("wall_clock_s"),
                    budget_env_steps=budget.get("env_steps"))
