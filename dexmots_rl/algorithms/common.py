@@ -28,7 +28,8 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from ..envs import make_env
 from .checkpoint import save_checkpoint
-from .evaluation import evaluate_policy
+from .evaluation import evaluate_policy, periodic_episodes
+from .validation import validate_run_config
 
 __all__ = ["BASELINES", "ObsNorm", "RunWriter", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
            "policy_from_data", "sync_obs_norm", "tanh_gaussian_actor"]
@@ -157,6 +158,7 @@ class RunWriter:
     def __init__(self, cfg):
         if cfg.resume:
             raise ValueError(f"algo {cfg.algo.name!r} does not resume runs (resume={cfg.resume}); start a new run")
+        validate_run_config(cfg)
         self.cfg, self.dir = cfg, Path(cfg.run_dir)
         self.dir.mkdir(parents=True, exist_ok=True)
         (self.dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
@@ -185,18 +187,20 @@ class RunWriter:
             "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
         })
 
-    def evaluate(self, policy, counters: dict, final: bool = True) -> dict:
-        """Deterministic evaluation on the plain task env; the final one also writes ``metrics.json``."""
+    def evaluate(self, policy, counters: dict, final: bool = True, budget: dict | None = None) -> dict:
+        """Deterministic evaluation on the plain task env (``eval.curve_episodes`` episodes during training);
+        the final one also writes ``metrics.json``, with ``budget`` (:meth:`.budget.RunBudget.record`)."""
         cfg = self.cfg
         rec = {"record": self.dir / "eval.mcap", "live": True} if cfg.eval.record else {}
-        ev = evaluate_policy(policy, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **rec)
+        episodes = cfg.eval.episodes if final else periodic_episodes(cfg.eval)
+        ev = evaluate_policy(policy, cfg.task, episodes, cfg.eval.seed, cfg.device, **rec)
         if not final:
             self.log({"iteration": counters["iteration"],
                       **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
             return ev
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "run_dir": str(self.dir)}
+                  "budget": budget or {}, "run_dir": str(self.dir)}
         (self.dir / "metrics.json").write_text(json.dumps(result, indent=2))
         log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,
                  ev["success_rate"], counters["env_steps"], counters["wall_clock_s"])

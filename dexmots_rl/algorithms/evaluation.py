@@ -28,7 +28,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..envs import make_env
 
-__all__ = ["evaluate_policy", "policy_from_checkpoint"]
+__all__ = ["evaluate_policy", "periodic_episodes", "policy_from_checkpoint"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,12 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         **{f"success_by_{name}": _success_by(rollout.get(key)[:, 0].reshape(-1), won)
            for name, key in base.breakdowns.items()},
     }
+
+
+def periodic_episodes(eval_cfg) -> int:
+    """Episodes of an evaluation during training: ``eval.curve_episodes`` (learning curves can be cheaper
+    than the final evaluation) or, when null, ``eval.episodes``."""
+    return eval_cfg.get("curve_episodes") or eval_cfg.episodes
 
 
 def _success_by(values: torch.Tensor, won: torch.Tensor, groups: int = 4) -> list[dict]:

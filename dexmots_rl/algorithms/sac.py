@@ -30,6 +30,7 @@ from torchrl.modules import ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 from tqdm.auto import tqdm
 
+from .budget import RunBudget
 from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
     tanh_gaussian_actor
 
@@ -86,6 +87,7 @@ def train(cfg: DictConfig) -> dict:
     updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
     counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "updates": 0}
     bar = tqdm(total=iterations, desc=f"sac {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
+    budget, stopped_by = RunBudget.from_config(cfg), None
     t_start = time.perf_counter()
     for data in collector:
         store_transitions(buffer, data)
@@ -116,14 +118,19 @@ def train(cfg: DictConfig) -> dict:
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
-        last = counters["iteration"] == iterations
+        stopped_by = budget.reached(counters)
+        last = counters["iteration"] == iterations or stopped_by is not None
         evaluate_now = cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last
         if last or counters["iteration"] % cfg.checkpoint_every == 0 or evaluate_now:
             sync_obs_norm(policy, vecnorm)
             writer.checkpoint(counters, {"policy": policy, "loss": loss, "vecnorm": vecnorm}, {"optimizer": optimizer})
             if evaluate_now:
+                t_eval = time.perf_counter()
                 writer.evaluate(policy, counters, final=False)
+                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
+        if stopped_by is not None:
+            break
     bar.close()
     collector.shutdown()
     sync_obs_norm(policy, vecnorm)
-    return writer.evaluate(policy, counters)
+    return writer.evaluate(policy, counters, budget=budget.record(stopped_by))

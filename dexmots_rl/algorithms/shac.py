@@ -35,9 +35,10 @@ from tqdm.auto import tqdm
 from ..atomic import atomic_write_json, dumps_json
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
+from .budget import RunBudget
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .distributed import Distributed
-from .evaluation import evaluate_policy
+from .evaluation import evaluate_policy, periodic_episodes
 from .networks import make_networks
 from .rundir import RunDirLock, prepare_fresh_run_dir, resume_config, truncate_logs
 from .validation import validate_run_config
@@ -160,8 +161,9 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
                disable=not (cfg.progress and dist.is_main), file=sys.stderr)
     t_start = time.perf_counter() - counters["wall_clock_s"]
     stop_at = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
+    budget, stopped_by = RunBudget.from_config(cfg), None
     interrupted = False
-    while counters["iteration"] < stop_at and not interrupted:
+    while counters["iteration"] < stop_at and not interrupted and stopped_by is None:
         it = counters["iteration"]
         frac = 1.0 - it / iterations if cfg.algo.lr_decay == "linear" else 1.0
         for opt, lr in ((actor_opt, cfg.algo.actor_lr), (critic_opt, cfg.algo.critic_lr)):
@@ -212,28 +214,36 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         counters["iteration"] += 1
         counters["env_steps"] += rollout.numel() * dist.world_size
         counters["wall_clock_s"] = time.perf_counter() - t_start
+        # the main rank's clock decides (the others' include its evaluations) and every rank stops with it
+        over = budget.reached(counters) if dist.is_main else None
+        if dist.sum(torch.tensor([float(over is not None)])) > 0:
+            stopped_by = over or "wall_clock_s"
         row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
         if dist.is_main:
             _log_row(logger, run_dir, row)
-            last = counters["iteration"] == stop_at
+            last = counters["iteration"] == stop_at or stopped_by is not None
             if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
                 _save(run_dir, cfg, counters, modules, optimizers, td, env)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
-                ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
+                t_eval = time.perf_counter()
+                ev = evaluate_policy(actor, cfg.task, periodic_episodes(cfg.eval), cfg.eval.seed, cfg.device,
+                                     **_rec(cfg, run_dir))
                 _log_row(logger, run_dir, {"iteration": counters["iteration"],
                                            **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
+                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
     bar.close()
     result = {}
     if interrupted:
         result = {"interrupted": stop.signal or "signal", "iteration": counters["iteration"], "run_dir": str(run_dir)}
-    if dist.is_main and counters["iteration"] == iterations and not interrupted:
+    if dist.is_main and (counters["iteration"] == iterations or stopped_by is not None) and not interrupted:
         ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "skipped_updates": counters["skipped_updates"], "run_dir": str(run_dir)}
+                  "skipped_updates": counters["skipped_updates"], "budget": budget.record(stopped_by),
+                  "run_dir": str(run_dir)}
         atomic_write_json(run_dir / "metrics.json", result)
     dist.close()
     return result

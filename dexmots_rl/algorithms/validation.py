@@ -62,7 +62,10 @@ _RUN_RULES = {
     "overwrite": (lambda v: isinstance(v, bool), "true or false"),
     "eval.episodes": (lambda v: _integer(v) and v > 0, "a positive integer"),
     "eval.every": (lambda v: _integer(v) and v >= 0, "a non-negative integer (0: only at the end)"),
+    "eval.curve_episodes": (lambda v: v is None or (_integer(v) and v > 0), "null or a positive integer"),
     "eval.seed": (lambda v: _integer(v), "an integer"),
+    "budget.wall_clock_s": (lambda v: v is None or (_number(v) and v > 0), "null or a positive number of seconds"),
+    "budget.env_steps": (lambda v: v is None or (_integer(v) and v > 0), "null or a positive integer"),
     "eval.record": (lambda v: isinstance(v, bool), "true or false"),
 }
 

@@ -20,7 +20,11 @@ import logging
 import sys
 from pathlib import Path
 
-__all__ = ["CONFIG_DIR", "config_dir", "main"]
+__all__ = ["CONFIG_DIR", "TRAINERS", "config_dir", "main"]
+
+#: algo name -> the module of :mod:`dexmots_rl.algorithms` whose ``train(cfg)`` runs it (imported on use: each
+#: pulls in only what it needs); ``dexmots-table`` reads it to know which methods can run
+TRAINERS = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac"}
 
 
 def config_dir() -> Path:
@@ -53,12 +57,10 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
             raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
         if str(cfg.device).startswith("cpu"):
             torch.set_num_threads(threads)
-    # algo name -> the module whose train(cfg) runs it (imported on use: each pulls in only what it needs)
-    trainers = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac"}
-    if cfg.algo.name not in trainers:
-        raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
-    module = importlib.import_module(f"..algorithms.{trainers[cfg.algo.name]}", __package__)
-    if trainers[cfg.algo.name] == "shac":
+    if cfg.algo.name not in TRAINERS:
+        raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(TRAINERS)}")
+    module = importlib.import_module(f"..algorithms.{TRAINERS[cfg.algo.name]}", __package__)
+    if TRAINERS[cfg.algo.name] == "shac":
         return module.train(cfg, overrides)
     return module.train(cfg)
 

@@ -1,0 +1,192 @@
+"""``dexmots-table``'s results: one row per run (``runs.csv``) read from its run directory, and the markdown
+tables built from those rows alone, so a CSV can be rendered again (or tested) without the runs.
+
+* :func:`learning_curve` — a run's success over training: its periodic evaluations (``eval_success_rate``
+  rows of ``metrics.jsonl``, placed at the env steps and training wall-clock of their iteration) and the final
+  evaluation of ``metrics.json``.
+* :func:`time_to_success` — the first point of a curve at or above a success rate (90 %).
+* :func:`run_row`, :func:`write_csv`, :func:`read_csv` — ``runs.csv`` (:data:`CSV_FIELDS`).
+* :func:`markdown_table` — Table 2's layout: tasks as rows, methods as columns, success in % as
+  mean ± sample s.d. over seeds, and an Average row (mean of the task means ± mean of their s.d., as the paper).
+* :func:`time_to_success_table` — the same layout for the mean training time to 90 % success.
+
+Example:
+    >>> rows = [{"task": "screw_claw", "method": "ppo", "experiment": "table", "status": "finished",
+    ...          "success": s} for s in (0.5, 0.7)]
+    >>> print(markdown_table(rows, [("screw_claw", "Screw")], [("ppo", "PPO")]))
+    | Environment | PPO |
+    |---|---:|
+    | Screw | 60.0 ± 14.1 |
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import statistics
+from pathlib import Path
+from typing import Iterable, Sequence
+
+__all__ = ["CSV_FIELDS", "learning_curve", "markdown_table", "read_csv", "run_row", "time_to_success",
+           "time_to_success_table", "write_csv"]
+
+CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
+              "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
+              "budget_env_steps", "run_dir")
+_INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps")
+_FLOATS = ("success", "wall_clock_s", "time_to_90_s", "budget_wall_clock_s")
+DASH = "–"  # a cell without finished runs
+
+
+def _jsonl(path: Path) -> list[dict]:
+    rows = []
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            try:
+                rows.append(json.loads(line))
+            except ValueError:  # a torn last line of a killed run
+                continue
+    return rows
+
+
+def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
+    """``[{"env_steps", "wall_clock_s", "success"}, ...]`` in training order; ``metrics``: the run's final
+    ``metrics.json`` (read from ``run_dir`` when ``None``; absent: the periodic evaluations only)."""
+    run_dir = Path(run_dir)
+    at_iteration, points = {}, []
+    for row in _jsonl(run_dir / "metrics.jsonl"):
+        if "eval_success_rate" not in row and "env_steps" in row:
+            at_iteration[row.get("iteration")] = row  # the training row an evaluation row follows
+        elif "eval_success_rate" in row and row.get("iteration") in at_iteration:
+            train = at_iteration[row["iteration"]]
+            points.append({"env_steps": train["env_steps"], "wall_clock_s": train["wall_clock_s"],
+                           "success": row["eval_success_rate"]})
+    if metrics is None and (run_dir / "metrics.json").is_file():
+        try:
+            metrics = json.loads((run_dir / "metrics.json").read_text())
+        except ValueError:
+            metrics = None
+    if metrics and "success_rate" in metrics:
+        points.append({"env_steps": metrics.get("env_steps"), "wall_clock_s": metrics.get("train_wall_clock_s"),
+                       "success": metrics["success_rate"]})
+    return points
+
+
+def time_to_success(curve: Sequence[dict], threshold: float = 0.9) -> dict | None:
+    """The first point of ``curve`` whose success is at least ``threshold``, else ``None``."""
+    return next((p for p in curve if p["success"] is not None and p["success"] >= threshold), None)
+
+
+def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> dict:
+    """The ``runs.csv`` row of ``run`` (with ``task``, ``method``, ``action``, ``seed``, ``experiment``,
+    ``run_dir``); ``metrics``: its final ``metrics.json`` (``None`` unless finished)."""
+    row = {k: None for k in CSV_FIELDS}
+    row.update(task=run.task, method=run.method, action=run.action, seed=run.seed, experiment=run.experiment,
+               status=status, run_dir=str(run.run_dir))
+    if metrics is not None:
+        budget = metrics.get("budget") or {}
+        reached = time_to_success(learning_curve(run.run_dir, metrics), threshold)
+        row.update(success=round(metrics["success_rate"], 4), episodes=metrics.get("episodes"),
+                   wall_clock_s=metrics.get("train_wall_clock_s"), env_steps=metrics.get("env_steps"),
+                   stopped_by=budget.get("stopped_by"), budget_wall_clock_s=budget.get("wall_clock_s"),
+                   budget_env_steps=budget.get("env_steps"))
+        if reached is not None:
+            row.update(time_to_90_s=reached["wall_clock_s"], env_steps_to_90=reached["env_steps"])
+    return row
+
+
+def write_csv(rows: Iterable[dict], path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: "" if row.get(k) is None else row[k] for k in CSV_FIELDS})
+    return path
+
+
+def read_csv(path) -> list[dict]:
+    """``runs.csv`` back as rows with numbers typed and empty cells ``None``."""
+    rows = []
+    with open(path, newline="") as f:
+        for raw in csv.DictReader(f):
+            row = {k: (v if v != "" else None) for k, v in raw.items()}
+            for k in _INTS:
+                if row.get(k) is not None:
+                    row[k] = int(float(row[k]))
+            for k in _FLOATS:
+                if row.get(k) is not None:
+                    row[k] = float(row[k])
+            rows.append(row)
+    return rows
+
+
+def _grouped(rows: Iterable[dict], value: str) -> dict[tuple[str, str], list[float]]:
+    groups: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        if r.get("experiment", "table") == "table" and r.get("status") == "finished":
+            groups.setdefault((r["task"], r["method"]), [])
+            if r.get(value) is not None:
+                groups[(r["task"], r["method"])].append(float(r[value]))
+    return groups
+
+
+def _mean_sd(values: Sequence[float]) -> tuple[float, float | None]:
+    return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else None)
+
+
+def _header(methods) -> list[str]:
+    return ["| Environment | " + " | ".join(label for _, label in methods) + " |",
+            "|---|" + "---:|" * len(methods)]
+
+
+def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], methods: Sequence[tuple[str, str]],
+                   seeds: int | None = None) -> str:
+    """Success (% of the evaluation episodes) per task (rows, ``(name, label)`` pairs) and method (columns),
+    mean ± sample s.d. over the finished ``table`` runs; a single run shows its value alone, a cell with fewer
+    runs than ``seeds`` says how many (``n=2``). The Average row (with more than one task) needs every task."""
+    groups = _grouped(rows, "success")
+    lines = _header(methods)
+    stats = {}
+    for task, label in tasks:
+        cells = []
+        for method, _ in methods:
+            values = groups.get((task, method)) or []
+            if not values:
+                cells.append(DASH)
+                continue
+            mean, sd = stats[(task, method)] = _mean_sd(values)
+            cell = f"{100 * mean:.1f}" + (f" ± {100 * sd:.1f}" if sd is not None else "")
+            cells.append(cell + (f" (n={len(values)})" if seeds is not None and len(values) < seeds else ""))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    if len(tasks) > 1:
+        cells = []
+        for method, _ in methods:
+            per_task = [stats.get((task, method)) for task, _ in tasks]
+            if any(s is None for s in per_task):
+                cells.append(DASH)
+                continue
+            mean = statistics.fmean(m for m, _ in per_task)
+            sds = [sd for _, sd in per_task]
+            cells.append(f"{100 * mean:.1f}" + ("" if None in sds else f" ± {100 * statistics.fmean(sds):.1f}"))
+        lines.append("| Average | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def time_to_success_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]],
+                          methods: Sequence[tuple[str, str]]) -> str:
+    """Mean training wall-clock (s) to 90 % success over the finished runs that reached it, and how many of
+    the runs did (``84 s (2/3)``); ``–`` when none did."""
+    rows = list(rows)
+    reached = _grouped(rows, "time_to_90_s")
+    runs = {key: len(v) for key, v in _grouped(rows, "success").items()}
+    lines = _header(methods)
+    for task, label in tasks:
+        cells = []
+        for method, _ in methods:
+            times, n = reached.get((task, method)) or [], runs.get((task, method), 0)
+            cells.append(f"{statistics.fmean(times):.0f} s ({len(times)}/{n})" if times else
+                         (f"{DASH} (0/{n})" if n else DASH))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -1,0 +1,173 @@
+"""dexmots-table: the markdown writer on a known CSV, restart skipping finished runs, spec errors naming the
+field, the figures from synthetic run directories, the common training budget, one real tiny sweep."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from dexmots_rl.apps import table
+from dexmots_rl.apps.table_spec import SweepSpecError
+from dexmots_rl.apps.train import CONFIG_DIR, run as train
+from dexmots_rl.viz.table_writer import markdown_table, read_csv, time_to_success_table
+
+KNOWN_CSV = """\
+task,method,action,seed,experiment,status,success,episodes,wall_clock_s,env_steps,time_to_90_s,env_steps_to_90,stopped_by,budget_wall_clock_s,budget_env_steps,run_dir
+screw_claw,dexmots,vi,0,table,finished,0.97,100,100.0,9000,40.0,3000,wall_clock_s,100,,r/0
+screw_claw,dexmots,vi,1,table,finished,0.93,100,100.0,9000,60.0,4000,wall_clock_s,100,,r/1
+screw_claw,dexmots,torque,0,action_space,finished,0.10,100,100.0,9000,,,wall_clock_s,100,,r/2
+screw_claw,ppo,vi,0,table,finished,0.50,100,100.0,90000,,,wall_clock_s,100,,r/3
+screw_claw,ppo,vi,1,table,failed,,,,,,,,,,r/4
+allegro_rotate,dexmots,vi,0,table,finished,1.0,100,100.0,5000,20.0,1000,wall_clock_s,100,,r/5
+allegro_rotate,dexmots,vi,1,table,finished,0.98,100,100.0,5000,30.0,1500,wall_clock_s,100,,r/6
+"""
+
+KNOWN_TABLE = """\
+| Environment | Ours | PPO |
+|---|---:|---:|
+| Screw-top (Claw) | 95.0 ± 2.8 | 50.0 (n=1) |
+| Screw-top (Allegro) | 99.0 ± 1.4 | – |
+| Average | 97.0 ± 2.1 | – |"""
+
+KNOWN_TIMES = """\
+| Environment | Ours | PPO |
+|---|---:|---:|
+| Screw-top (Claw) | 50 s (2/2) | – (0/1) |
+| Screw-top (Allegro) | 25 s (2/2) | – |"""
+
+TASKS = [("screw_claw", "Screw-top (Claw)"), ("allegro_rotate", "Screw-top (Allegro)")]
+METHODS = [("dexmots", "Ours"), ("ppo", "PPO")]
+
+
+def test_the_writer_renders_a_known_csv_as_table_2(tmp_path):
+    (tmp_path / "runs.csv").write_text(KNOWN_CSV)
+    rows = read_csv(tmp_path / "runs.csv")
+    assert rows[0]["seed"] == 0 and rows[0]["success"] == 0.97 and rows[4]["success"] is None
+    assert markdown_table(rows, TASKS, METHODS, seeds=2) == KNOWN_TABLE
+    assert time_to_success_table(rows, TASKS, METHODS) == KNOWN_TIMES
+
+
+def _table_cfg(tmp_path, *overrides):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR / "table"), version_base="1.3"):
+        return compose("config", overrides=[f"sweep_dir={tmp_path / 'sweep'}", "launcher=basic", "threads_per_job=1",
+                                            "progress=false", "tasks=[screw_claw]", "methods=[dexmots,ppo]",
+                                            "seeds=[0,1]", "action_ablation.tasks=[]", *overrides])
+
+
+def _fake_finished(run_dir: Path, task: str, algo: str, success: float, curve=(0.3, 0.95)) -> None:
+    """A run directory as a trainer leaves it: training rows, periodic evaluations, the final metrics.json."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i, s in enumerate(curve, start=1):
+        rows.append({"iteration": i, "env_steps": 1000 * i, "wall_clock_s": 10.0 * i, "reward": 0.1})
+        rows.append({"iteration": i, "eval_success_rate": s, "eval_episodes": 10})
+    (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (run_dir / "metrics.json").write_text(json.dumps({
+        "task": task, "algo": algo, "success_rate": success, "episodes": 100, "env_steps": 1000 * (len(curve) + 1),
+        "train_wall_clock_s": 10.0 * (len(curve) + 1),
+        "budget": {"wall_clock_s": 100.0, "env_steps": None, "stopped_by": "wall_clock_s"}}))
+
+
+def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch):
+    runs = tmp_path / "sweep" / "runs" / "screw_claw"
+    _fake_finished(runs / "dexmots" / "vi" / "seed0", "screw_claw", "ahac", 0.9)
+    _fake_finished(runs / "ppo" / "vi" / "seed1", "screw_claw", "ppo", 0.4)
+    (runs / "ppo" / "vi" / "seed0").mkdir(parents=True)
+    (runs / "ppo" / "vi" / "seed0" / "metrics.json").write_text('{"task": "screw_cl')  # torn: not finished
+    launched = []
+
+    def fake_train_job(cfg):
+        launched.append((cfg.task.name, cfg.algo.name, cfg.seed, cfg.task.action, cfg.torch_threads))
+        assert cfg.overwrite and cfg.budget.wall_clock_s == 100  # the preset's budget, for every run
+        _fake_finished(Path(cfg.run_dir), cfg.task.name, cfg.algo.name, 0.5)
+        return {}
+
+    monkeypatch.setattr(table, "train_job", fake_train_job)
+    result = table.run_table(_table_cfg(tmp_path))
+    assert sorted(launched) == [("screw_claw", "ahac", 1, "vi", 1), ("screw_claw", "ppo", 0, "vi", 1)]
+    assert (result["runs"], result["skipped"], result["launched"], result["unfinished"]) == (4, 2, 2, 0)
+    rows = read_csv(tmp_path / "sweep" / "runs.csv")
+    assert [(r["method"], r["seed"], r["status"]) for r in rows] == [
+        ("dexmots", 0, "finished"), ("dexmots", 1, "finished"), ("ppo", 0, "finished"), ("ppo", 1, "finished")]
+    assert rows[0]["time_to_90_s"] == 20.0 and rows[0]["env_steps_to_90"] == 2000  # the first eval >= 90 %
+    launched.clear()
+    assert table.run_table(_table_cfg(tmp_path))["launched"] == 0 and launched == []
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["methods=[dexmots,nope]"], "methods: unknown method 'nope'"),
+    (["tasks=[screw_claw,nope]"], "tasks: unknown task 'nope'"),
+    (["seeds=[]"], "seeds must be a non-empty list"),
+    (["+method_catalog.future={label:F,overrides:[\"algo=future\"]}", "methods=[future]"],
+     "methods: method 'future' needs algo=future, which dexmots-train does not have yet"),
+    (["action_ablation.tasks=[screw_claw]", "action_ablation.actions=[torque,telepathy]"],
+     "action_ablation.actions: unknown action 'telepathy'"),
+    (["budget.wall_clock_s=-5"], "budget.wall_clock_s must be null or a positive number"),
+    (['method_overrides.ppo=["budget.wall_clock_s=5"]'], "method_overrides.ppo: 'budget.wall_clock_s=5' sets budget"),
+    (['method_overrides.ppo=["algo.iteratons=1"]'], "run screw_claw/ppo/vi/seed0: Could not override 'algo.iteratons'"),
+    (['method_overrides.ppo=["eval.every=-1"]'], "run screw_claw/ppo/vi/seed0: eval.every must be"),
+    (["+launcher_params.partishun=gpu"], "launcher_params.partishun: the basic launcher has no field"),
+    (["launcher=mpi"], "launcher must be one of"),
+])
+def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, message):
+    monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("a bad spec must not launch anything"))
+    with pytest.raises(SweepSpecError) as info:
+        table.run_table(_table_cfg(tmp_path, *overrides))
+    assert message in str(info.value)
+    assert not (tmp_path / "sweep" / "runs").exists()
+
+
+def test_the_figures_and_table_come_from_the_run_directories(tmp_path, monkeypatch):
+    runs = tmp_path / "sweep" / "runs" / "screw_claw"
+    for seed, (method, algo) in enumerate([("dexmots", "ahac"), ("ppo", "ppo")] * 2):
+        seed //= 2
+        for action in ("vi", "torque"):
+            _fake_finished(runs / method / action / f"seed{seed}", "screw_claw", algo, 0.5 + 0.1 * seed,
+                           curve=(0.1 * seed, 0.5, 0.8 + 0.1 * seed))
+    monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("everything is finished"))
+    result = table.run_table(_table_cfg(tmp_path, "action_ablation.tasks=[screw_claw]",
+                                        "action_ablation.methods=[dexmots,ppo]", "action_ablation.actions=[torque,vi]"))
+    sweep = tmp_path / "sweep"
+    for png in ("curves_screw_claw.png", "action_space_screw_claw.png"):
+        assert (sweep / png).stat().st_size > 10_000 and (sweep / png).read_bytes()[:4] == b"\x89PNG"
+    assert "| Screw-top (Claw) | 55.0 ± 7.1 | 55.0 ± 7.1 |" in result["table"]
+    assert "100 s of training wall-clock" in result["table"] and "wall_clock_s (4)" in result["table"]
+    assert (sweep / "table.md").read_text() == result["table"]
+    assert len(read_csv(sweep / "runs.csv")) == 8
+
+
+TINY = ["task.num_envs=2", "task.max_episode_steps=6", "eval.episodes=2", "progress=false", "torch_threads=1"]
+TINY_PPO = ["algo=ppo", "algo.frames_per_batch=12", "algo.minibatch_size=6", "algo.hidden=[8]"]
+
+
+def _train_cfg(run_dir, *overrides):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("config", overrides=[*TINY, f"run_dir={run_dir}", *overrides])
+
+
+def test_the_time_budget_stops_a_trainer_with_a_final_evaluation(tmp_path):
+    result = train(_train_cfg(tmp_path / "ppo", *TINY_PPO, "algo.total_frames=1e7", "budget.wall_clock_s=0.5"))
+    metrics = json.loads((tmp_path / "ppo" / "metrics.json").read_text())
+    assert metrics["budget"] == {"wall_clock_s": 0.5, "env_steps": None, "stopped_by": "wall_clock_s"}
+    assert 0.5 <= result["train_wall_clock_s"] < 30 and result["iterations"] < 1e7 / 12
+    assert result["episodes"] == 2 and (tmp_path / "ppo" / "checkpoints" / "last.pt").is_file()
+    # the env-step budget, on SHAC (2 worlds x horizon 4 = 8 steps per iteration)
+    result = train(_train_cfg(tmp_path / "shac", "algo=shac", "algo.horizon=4", "algo.hidden=[8]",
+                              "algo.critic_iterations=1", "algo.iterations=1000", "budget.env_steps=20"))
+    assert result["iterations"] == 3 and result["env_steps"] == 24
+    assert result["budget"]["stopped_by"] == "env_steps"
+
+
+def test_a_tiny_real_sweep_end_to_end(tmp_path):
+    cfg = _table_cfg(tmp_path, "methods=[ppo]", "seeds=[0]", "budget.wall_clock_s=null",
+                     'run_overrides=["task.num_envs=2","task.max_episode_steps=6","eval.episodes=2","eval.every=1",'
+                     '"eval.curve_episodes=2"]',
+                     'method_overrides.ppo=["algo.total_frames=24","algo.frames_per_batch=12","algo.minibatch_size=6",'
+                     '"algo.hidden=[8]"]')
+    result = table.run_table(cfg)
+    assert (result["launched"], result["unfinished"]) == (1, 0)
+    row = read_csv(tmp_path / "sweep" / "runs.csv")[0]
+    assert row["status"] == "finished" and row["env_steps"] == 24 and row["stopped_by"] == "schedule"
