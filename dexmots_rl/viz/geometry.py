@@ -3,7 +3,8 @@
 The hand is drawn exactly as the simulator sees it: every link is the union of its contact spheres
 (``point_pos`` / ``point_radius``, link frame), and consecutive spheres of one link with the same radius
 are joined by a cylinder, which turns the sampled points of a capsule back into that capsule. The
-object is a triangle mesh in its body frame: the convex polytope of its planes (halfspace intersection),
+object's moving part is a triangle mesh in its body frame (an operable object's static base: its boxes,
+world frame, ``base_boxes``): the convex polytope of its planes (halfspace intersection),
 an icosphere or a cylinder for the analytic shapes, and for a signed-distance object the mesh of the
 MJCF the scene was compiled from.
 
@@ -24,13 +25,14 @@ import logging
 
 import numpy as np
 
-__all__ = ["LinkGeometry", "SceneGeometry", "scene_geometry", "link_mesh", "HAND_RGBA", "OBJECT_RGBA", "GOAL_RGBA"]
+__all__ = ["LinkGeometry", "SceneGeometry", "scene_geometry", "link_mesh", "box_mesh", "HAND_RGBA", "OBJECT_RGBA", "GOAL_RGBA", "BASE_RGBA"]
 
 log = logging.getLogger(__name__)
 
 HAND_RGBA = (0.75, 0.38, 0.12, 1.0)
 OBJECT_RGBA = (0.20, 0.40, 0.85, 1.0)
 GOAL_RGBA = (0.30, 0.85, 0.40, 0.30)
+BASE_RGBA = (0.55, 0.55, 0.60, 1.0)
 
 
 @dataclasses.dataclass
@@ -49,6 +51,8 @@ class SceneGeometry:
     links: list[LinkGeometry]
     object_vertices: np.ndarray  # [V, 3] object frame
     object_faces: np.ndarray  # [T, 3] int, counter-clockwise seen from outside
+    # the operable object's static base (world frame): per box centre (3), wxyz quat (4), half sizes (3)
+    base_boxes: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 10)))
 
     @property
     def extent(self) -> float:
@@ -127,7 +131,26 @@ def scene_geometry(scene) -> SceneGeometry:
                             np.asarray(scene.point_radius[i * p : (i + 1) * p], dtype=np.float64))
              for i in range(scene.num_hand_dofs)]
     verts, faces = _object_mesh(scene)
-    return SceneGeometry(list(scene.body_names), links, verts, faces)
+    return SceneGeometry(list(scene.body_names), links, verts, faces, _base_boxes(scene))
+
+
+def _base_boxes(scene) -> np.ndarray:
+    import mujoco
+
+    rows = []
+    for pos, rot, half in zip(scene.base_box_pos, scene.base_box_rot, scene.base_box_half):
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, np.asarray(rot, dtype=np.float64).reshape(-1))
+        rows.append(np.concatenate([pos, quat, half]))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 10)
+
+
+def box_mesh(half) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices [8, 3] and faces [12, 3] of a box with half sizes ``half``, centred at the origin (trimesh)."""
+    import trimesh
+
+    mesh = trimesh.creation.box(extents=2 * np.asarray(half, dtype=np.float64))
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
 
 
 def _rotation_z_to(d: np.ndarray) -> np.ndarray:

@@ -90,7 +90,10 @@ def _geometry(path: Path, scene, num_bodies: int, body_names: list[str]) -> Scen
     tri = obj.triangles[0]
     verts = np.array([[p.x, p.y, p.z] for p in tri.points], dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(tri.indices, dtype=np.int64).reshape(-1, 3)
-    return SceneGeometry(body_names, links, verts, faces)
+    base = entities.get("world0/base")  # an operable object's static base (absent otherwise)
+    meta = {kv.key: kv.value for kv in base.metadata} if base is not None else {}
+    boxes = np.asarray(json.loads(meta.get("base_boxes", "[]")), dtype=np.float64).reshape(-1, 10)
+    return SceneGeometry(body_names, links, verts, faces, boxes)
 
 
 def read_recording(path: str | os.PathLike) -> Recording:

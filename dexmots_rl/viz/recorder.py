@@ -33,7 +33,7 @@ import torch
 from tensordict import TensorDictBase
 
 from ..atomic import atomic_write
-from .geometry import GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, scene_geometry
+from .geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, scene_geometry
 from .recording import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
                         WRENCH_TOPIC, body_frame, world_frame)
 
@@ -260,6 +260,14 @@ class EpisodeRecorder:
                 e = update.entities.add(timestamp=ts, frame_id=frame, id=f"world{w}/{kind}", frame_locked=True)
                 e.metadata.append(pb["KeyValuePair"](key="body", value=kind))
                 e.triangles.add(pose=self._pose((0, 0, 0)), points=verts, indices=indices, color=self._color(rgba))
+            if len(g.base_boxes):  # an operable object's static base: cubes in the world's frame
+                e = update.entities.add(timestamp=ts, frame_id=world_frame(w), id=f"world{w}/base", frame_locked=True)
+                e.metadata.append(pb["KeyValuePair"](key="base_boxes", value=json.dumps(g.base_boxes.tolist())))
+                for box in g.base_boxes:
+                    qw, qx, qy, qz = (float(x) for x in box[3:7])
+                    e.cubes.add(pose=self._pose(box[:3], (qx, qy, qz, qw)),
+                                size=pb["Vector3"](x=2 * float(box[7]), y=2 * float(box[8]), z=2 * float(box[9])),
+                                color=self._color(BASE_RGBA))
         return update
 
     def _transforms(self, t_ns: int, body_pose: np.ndarray, goal_pose: np.ndarray):

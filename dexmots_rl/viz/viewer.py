@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, link_mesh
+from .geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, box_mesh, link_mesh
 from .reader import read_recording
 from .recorder import FORCE_SCALE, TORQUE_SCALE
 from .recording import Recording, RecordingFormatError
@@ -229,6 +229,11 @@ class ReplayViewer:
         self._handles["object"] = scene.add_batched_meshes_simple(
             "/worlds/object", g.object_vertices, g.object_faces, ident, zeros, batched_colors=_rgb(OBJECT_RGBA),
             flat_shading=True, lod="off")
+        for b, box in enumerate(g.base_boxes):  # an operable object's static base: placed once per world
+            verts, faces = box_mesh(box[7:])
+            self._handles[f"base{b}"] = scene.add_batched_meshes_simple(
+                f"/worlds/base{b}", verts, faces, np.tile(box[3:7], (m, 1)), self._offsets + box[:3],
+                batched_colors=_rgb(BASE_RGBA), flat_shading=True, lod="off")
         self._handles["goal"] = scene.add_batched_meshes_simple(
             "/worlds/goal", g.object_vertices, g.object_faces, ident, zeros, batched_colors=_rgb(GOAL_RGBA),
             opacity=GOAL_RGBA[3], flat_shading=True, lod="off", cast_shadow=False)
@@ -286,6 +291,10 @@ class ReplayViewer:
                     h = self._handles[f"link{i}"]
                     h.batched_positions = (self._pos[f, worlds, i] + off).astype(np.float32)
                     h.batched_wxyzs = self._quat[f, worlds, i].astype(np.float32)
+                for b, box in enumerate(self.rec.geometry.base_boxes):
+                    h = self._handles[f"base{b}"]
+                    h.batched_positions = (box[:3] + off).astype(np.float32)
+                    h.batched_wxyzs = np.tile(box[3:7], (len(off), 1)).astype(np.float32)
                 obj = self._handles["object"]
                 obj.batched_positions = (self._pos[f, worlds, -1] + off).astype(np.float32)
                 obj.batched_wxyzs = self._quat[f, worlds, -1].astype(np.float32)
