@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="goal coordinates; for a hinge several angles give several plans")
     p.add_argument("--steps", type=int, default=60, help="env steps of the plan")
     p.add_argument("--iterations", type=int, default=200)
-    p.add_argument("--lr", type=float, default=0.5)
+    p.add_argument("--lr", type=float, default=None, help="Adam step (default: the task's PlanProblem.lr)")
     p.add_argument("--damping", type=float, nargs="+", default=None, help="object joint damping per plan")
     p.add_argument("--friction", type=float, nargs="+", default=None, help="object joint friction per plan")
     p.add_argument("--out", required=True, help="a .pt file (one plan) or a directory (one file per plan)")
@@ -71,7 +71,7 @@ def validate_args(args) -> None:
     for name, positive in (("steps", args.steps), ("iterations", args.iterations)):
         if positive <= 0:
             bad(name, f"must be a positive integer, got {positive}")
-    if not (math.isfinite(args.lr) and args.lr > 0):
+    if args.lr is not None and not (math.isfinite(args.lr) and args.lr > 0):
         bad("lr", f"must be a positive finite number, got {args.lr}")
     for name in ("start", "goal"):
         for v in getattr(args, name) or []:
@@ -101,8 +101,9 @@ def _plan(args) -> None:
         except ValueError as e:
             raise SystemExit(f"dexmots-plan: {e}") from None
         start, goal, params = _plan_inputs(args, scene)
+        lr = args.lr if args.lr is not None else _task_lr(args.task)
         t0 = time.perf_counter()
-        result = optimize_wrenches(scene, start, goal, args.steps, iterations=args.iterations, lr=args.lr,
+        result = optimize_wrenches(scene, start, goal, args.steps, iterations=args.iterations, lr=lr,
                                    params=params)
         wall = time.perf_counter() - t0
     out = Path(args.out)
@@ -125,6 +126,14 @@ def _plan(args) -> None:
               f"{result.final_error:.4g} ({wall:.1f} s)")
 
 
+def _task_lr(task: str) -> float:
+    """The task's planner step (``PlanProblem.lr``), 0.5 for a task without a plan problem."""
+    from ..envs import task_entry
+
+    problem = task_entry(task).env_class.plan_problem
+    return problem.lr if problem is not None else 0.5
+
+
 def run_plan_bench(task: str, iterations: int) -> dict:
     """``dexmots-bench plan``: the task's default plan from zero wrenches, timed, in one run."""
     from ..envs import task_entry, task_scene
@@ -136,7 +145,7 @@ def run_plan_bench(task: str, iterations: int) -> dict:
     scene, start, goal, steps = task_scene(task), problem.start, problem.goal, problem.steps
     optimize_wrenches(scene, start, goal, 1, iterations=1, progress=False)  # compile outside the timing
     t0 = time.perf_counter()
-    result = optimize_wrenches(scene, start, goal, steps, iterations=iterations, progress=False)
+    result = optimize_wrenches(scene, start, goal, steps, iterations=iterations, lr=problem.lr, progress=False)
     wall = time.perf_counter() - t0
     return {"task": task, "iterations": iterations, "steps": steps, "initial_error": result.initial_error,
             "final_error": result.final_error, "reduction": result.initial_error / max(result.final_error, 1e-12),

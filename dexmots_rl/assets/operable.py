@@ -65,6 +65,10 @@ class OperableObject:
     friction: float  # N m (Coulomb)
     stiffness: float  # N m/rad: the return spring, toward springref
     springref: float = 0.0  # rad
+    # kg m^2 added to the part's axial inertia (its mechanism's reflected inertia). The joint's Coulomb friction
+    # is explicit in the simulator, so dt f / (v_f I) must stay below ~1 (v_f = 0.05 rad/s): a 10 g trigger
+    # alone (4.4e-6 kg m^2) made it 9.5 at f = 0.002 N m, and its velocity chattered about zero
+    armature: float = 0.0
 
     def __post_init__(self):
         if not self.joint_range[0] < self.joint_range[1]:
@@ -87,6 +91,7 @@ SPRAY_BOTTLE = OperableObject(
     damping=0.01,
     friction=0.002,
     stiffness=0.05,
+    armature=2e-4,  # the trigger's pump: 2e-4 kg m^2 keeps the explicit friction stable (see armature)
 )
 
 SCISSORS = OperableObject(
@@ -103,6 +108,7 @@ SCISSORS = OperableObject(
     damping=0.01,
     friction=0.002,
     stiffness=0.02,
+    armature=1e-4,  # the pivot's friction stable at 0.004 N m (see armature)
 )
 
 STAPLER = OperableObject(
@@ -157,7 +163,7 @@ def scene_xml(obj: OperableObject) -> str:
         f'      <body name="object" pos="{_vec(obj.hinge_pos)}" quat="{quat}">\n'
         f'        <joint name="{obj.part.name}_hinge" type="hinge" axis="{_vec(obj.axis)}" '
         f'range="{_vec(obj.joint_range)}" damping="{_num(obj.damping)}" frictionloss="{_num(obj.friction)}" '
-        f'stiffness="{_num(obj.stiffness)}" springref="{_num(obj.springref)}" armature="0"/>\n'
+        f'stiffness="{_num(obj.stiffness)}" springref="{_num(obj.springref)}" armature="{_num(obj.armature)}"/>\n'
         f'        <geom name="{obj.part.name}" type="box" pos="{_vec(obj.part.pos)}" size="{_vec(obj.part.half)}" '
         f'mass="{_num(obj.mass)}" contype="2" conaffinity="1" rgba="0.3 0.5 0.8 1"/>\n'
         '      </body>\n'

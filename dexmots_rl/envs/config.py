@@ -113,3 +113,5 @@ class PlanProblem:
     start: tuple[float, ...]
     goal: tuple[float, ...]
     steps: int
+    lr: float = 0.5  # Adam step (N, N m) of the wrench optimiser: ~ the wrench the object needs (the claw's
+    # knob ~1 N m; a 10-40 g part of an operable object ~0.05-0.3 N m, where 0.5 diverges)

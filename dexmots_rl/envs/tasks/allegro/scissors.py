@@ -52,7 +52,7 @@ class ScissorsEnv(OperateEnv):
     )
     pregrasp_hint = GRASP
     bench: BenchPoses = bench_poses("scissors", close=(0.6, 0.3, 0.3, 0.3) * 3 + (0.0, 0.6, 0.0, 0.0))
-    plan_problem = PlanProblem(start=(0.0,), goal=(0.315,), steps=60)
+    plan_problem = PlanProblem(start=(0.0,), goal=(0.315,), steps=60, lr=0.01)
 
     def __init__(self, config: ScissorsConfig | None = None, **kwargs):
         super().__init__(ScissorsConfig() if config is None else config, **kwargs)

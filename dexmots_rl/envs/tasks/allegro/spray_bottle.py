@@ -49,7 +49,7 @@ class SprayBottleEnv(OperateEnv):
     )
     pregrasp_hint = GRASP
     bench: BenchPoses = bench_poses("spray_bottle", close=(0.0, 0.6, 0.6, 0.6) * 3 + (0.0, -0.6, 0.3, 0.3))
-    plan_problem = PlanProblem(start=(0.0,), goal=(0.405,), steps=60)
+    plan_problem = PlanProblem(start=(0.0,), goal=(0.405,), steps=60, lr=0.01)
 
     def __init__(self, config: SprayBottleConfig | None = None, **kwargs):
         super().__init__(SprayBottleConfig() if config is None else config, **kwargs)

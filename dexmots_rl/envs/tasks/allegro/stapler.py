@@ -49,7 +49,7 @@ class StaplerEnv(OperateEnv):
     )
     pregrasp_hint = GRASP
     bench: BenchPoses = bench_poses("stapler", close=(0.0, 0.6, 0.6, 0.6) * 3 + (0.0, -0.6, 0.3, 0.3))
-    plan_problem = PlanProblem(start=(0.0,), goal=(0.45,), steps=60)
+    plan_problem = PlanProblem(start=(0.0,), goal=(0.45,), steps=60, lr=0.01)
 
     def __init__(self, config: StaplerConfig | None = None, **kwargs):
         super().__init__(StaplerConfig() if config is None else config, **kwargs)
