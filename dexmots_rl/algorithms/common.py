@@ -194,9 +194,14 @@ class RunWriter:
             self.log({"iteration": counters["iteration"],
                       **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
             return ev
+        return self.write_result(ev, counters)
+
+    def write_result(self, ev: dict, counters: dict, **extra) -> dict:
+        """``metrics.json``: the evaluation ``ev``, the run's counters and ``extra`` entries; returns it."""
+        cfg = self.cfg
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "run_dir": str(self.dir)}
+                  **extra, "run_dir": str(self.dir)}
         (self.dir / "metrics.json").write_text(json.dumps(result, indent=2))
         log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,
                  ev["success_rate"], counters["env_steps"], counters["wall_clock_s"])

@@ -5,6 +5,7 @@
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
     dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac (no resume)
+    dexmots-train algo=mpc                          # sampling MPC + gradient refinement: evaluation only
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
 
@@ -54,7 +55,7 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
         if str(cfg.device).startswith("cpu"):
             torch.set_num_threads(threads)
     # algo name -> the module whose train(cfg) runs it (imported on use: each pulls in only what it needs)
-    trainers = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac"}
+    trainers = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac", "mpc": "mpc"}
     if cfg.algo.name not in trainers:
         raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(trainers)}")
     module = importlib.import_module(f"..algorithms.{trainers[cfg.algo.name]}", __package__)
@@ -89,8 +90,9 @@ def main() -> None:
             raise SystemExit(130 if result["interrupted"] == "SIGINT" else 143)
         if result:
             print(dumps_json(result))
-            print(f"results in {result['run_dir']} (metrics.json, metrics.jsonl, checkpoints/last.pt)",
-                  file=sys.stderr)
+            written = [name for name in ("metrics.json", "metrics.jsonl", "checkpoints/last.pt")
+                       if (Path(result["run_dir"]) / name).exists()]  # algo=mpc learns nothing: no checkpoint
+            print(f"results in {result['run_dir']} ({', '.join(written)})", file=sys.stderr)
 
     _app()
 
