@@ -115,65 +115,86 @@ def spline_weights(times: torch.Tensor, horizon: int, knots: int, interpolation:
 
 
 class PredictiveSampler(TensorDictModuleBase):
-    """The planner as a torchrl policy for ``num_worlds`` worlds of ``task_cfg``: reads each world's state,
-    writes ``"action"``. It keeps the current plans between calls (the warm start), so one instance follows
-    one batch of episodes; ``env.rollout(steps, planner)`` runs it. See the module docstring for a step.
+    """The planner as a torchrl policy for ``num_worlds`` worlds: reads each world's state, writes ``"action"``.
 
-    ``progress``: a tqdm bar advanced once per control step (or None)."""
+    ``sample_env``: ``num_worlds × candidates`` worlds of the evaluated task (gradients off);
+    ``refine_env``: ``num_worlds`` worlds of it with gradients (needed when ``refine_steps`` > 0). Both must be
+    functional (a step is a function of the TensorDict) and are never reset: :meth:`for_task` builds them
+    for a registered task. ``state_keys``: the entries that hold a world's whole state; ``step_key``: its
+    episode step counter (0 restarts the warm start). The planner keeps its plans between calls, so one
+    instance follows one batch of episodes: ``env.rollout(steps, planner, auto_reset=False)``.
+    ``progress``: a tqdm bar advanced once per control step (or None). See the module docstring for a step.
+    """
 
-    def __init__(self, task_cfg, num_worlds: int, candidates: int = 32, horizon: int = 15, knots: int = 4,
-                 noise: float = 0.1, interpolation: str = "linear", refine_steps: int = 2, refine_lr: float = 0.05,
-                 refine_optimizer: str = "adam", initial_plan: str = "hold", device="cpu", seed: int = 0,
-                 progress=None):
+    def __init__(self, sample_env, refine_env=None, *, num_worlds: int, candidates: int = 32, horizon: int = 15,
+                 knots: int = 4, noise: float = 0.1, interpolation: str = "linear", refine_steps: int = 2,
+                 refine_lr: float = 0.05, refine_optimizer: str = "adam", initial_plan: str = "hold",
+                 state_keys=STATE, step_key=("task", "step"), seed: int = 0, progress=None):
         super().__init__()
         check_config(dict(candidates=candidates, horizon=horizon, knots=knots, noise=noise,
                           interpolation=interpolation, refine_steps=refine_steps, refine_lr=refine_lr,
                           refine_optimizer=refine_optimizer, initial_plan=initial_plan))
-        self.in_keys, self.out_keys = list(STATE), ["action"]
+        if tuple(sample_env.batch_size) != (num_worlds * candidates,):
+            raise ValueError(f"sample_env must have num_worlds x candidates = {num_worlds * candidates} worlds, "
+                             f"got batch size {tuple(sample_env.batch_size)}")
+        if refine_steps and (refine_env is None or tuple(refine_env.batch_size) != (num_worlds,)):
+            raise ValueError(f"refine_steps = {refine_steps} needs a refine_env of {num_worlds} worlds with gradients")
+        self.sample_env, self.refine_env = sample_env, refine_env
+        self.in_keys, self.out_keys = list(state_keys), ["action"]
+        self.state_keys, self.step_key = list(state_keys), step_key
         self.num_worlds, self.candidates, self.horizon, self.knots = num_worlds, candidates, horizon, knots
         self.noise, self.refine_steps, self.refine_lr = noise, refine_steps, refine_lr
         self.refine_optimizer, self.initial_plan, self.progress = refine_optimizer, initial_plan, progress
-        # the planning worlds never reset (no env.reset call), so their seed only matters for blow-ups
-        self.sample_env = make_env(task_cfg, num_envs=num_worlds * candidates, differentiable=False, raw=True,
-                                   seed=seed, device=device)
-        self.refine_env = (make_env(task_cfg, num_envs=num_worlds, differentiable=True, raw=True, seed=seed,
-                                    device=device) if refine_steps else None)
-        space = self.sample_env.action_spec_unbatched.space
+        space = sample_env.action_spec_unbatched.space
         self.low, self.high = space.low, space.high
-        dtype = self.low.dtype
-        steps = torch.arange(horizon, dtype=dtype, device=self.low.device)
-        self.act_weights = spline_weights(steps, horizon, knots, interpolation)  # [H, M]: knots -> actions
-        knot_times = (torch.arange(knots, dtype=dtype, device=self.low.device)
-                      * (horizon / knots if interpolation == "zero" or knots == 1 else (horizon - 1) / (knots - 1)))
-        self.shift_weights = spline_weights(knot_times + 1, horizon, knots, interpolation)  # [M, M]: one step on
-        self.generator = torch.Generator(device=self.low.device).manual_seed(seed)
+        dtype, device = self.low.dtype, self.low.device
+        self.act_weights = spline_weights(torch.arange(horizon, dtype=dtype, device=device), horizon, knots,
+                                          interpolation)  # [H, M]: knots -> the horizon's actions
+        spacing = horizon / knots if interpolation == "zero" or knots == 1 else (horizon - 1) / (knots - 1)
+        knot_times = torch.arange(knots, dtype=dtype, device=device) * spacing
+        # [M, M]: the knots of the same plan one env step later (the old plan read at each knot's time + 1)
+        self.shift_weights = spline_weights(knot_times + 1, horizon, knots, interpolation)
+        self.generator = torch.Generator(device=device).manual_seed(seed)
         self.plan = None  # [N, M, A]: the current plan of every world
         self.stats = {"control_steps": 0, "sim_steps": 0, "grad_steps": 0, "noisy_wins": 0, "refined_wins": 0,
                       "refine_gain": 0.0}
+
+    @classmethod
+    def for_task(cls, task_cfg, num_worlds: int, candidates: int = 32, refine_steps: int = 2, device="cpu",
+                 seed: int = 0, **kwargs) -> "PredictiveSampler":
+        """A planner for ``num_worlds`` worlds of a registered task (a name or config, as ``make_env`` takes);
+        ``kwargs``: the other planner options."""
+        # the planning worlds are never reset, so their seed matters only for a world that blows up
+        sample_env = make_env(task_cfg, num_envs=num_worlds * candidates, differentiable=False, raw=True,
+                              seed=seed, device=device)
+        refine_env = (make_env(task_cfg, num_envs=num_worlds, differentiable=True, raw=True, seed=seed,
+                               device=device) if refine_steps else None)
+        return cls(sample_env, refine_env, num_worlds=num_worlds, candidates=candidates, refine_steps=refine_steps,
+                   seed=seed, **kwargs)
 
     # ------------------------------------------------------------------------------------------ plans
     def actions(self, knots: torch.Tensor) -> torch.Tensor:
         """``[B, H, A]`` actions of plans ``knots`` [B, M, A]."""
         return torch.einsum("hm,bma->bha", self.act_weights, knots)
 
-    def _initial(self, state: TensorDictBase) -> torch.Tensor:
-        """``[N, M, A]``: "hold" targets the hand's current joint positions at mid stiffness (position and
-        "vi" actions; torque actions: zero torque), "zero" is the middle of the action box."""
+    def initial(self, state: TensorDictBase) -> torch.Tensor:
+        """``[N, M, A]`` first plans: ``"hold"`` targets the hand's current joint positions at mid stiffness on a
+        DexEnv with position or "vi" actions; otherwise (``"zero"``, torque actions, other envs) the plan is
+        the middle of the action box."""
         env = self.sample_env
-        mid = (self.low + self.high) / 2
-        first = mid.expand(state.batch_size[0], -1).clone()
-        if self.initial_plan == "hold" and env.action_type in ("position", "vi"):
+        first = ((self.low + self.high) / 2).expand(state.batch_size[0], -1).clone()
+        if self.initial_plan == "hold" and getattr(env, "action_type", None) in ("position", "vi"):
             hand_q = state.get(("sim", "joint_q"))[:, :env.sim.nu]
             first[:, :env.sim.nu] = env.actions.actions_for_targets(hand_q.to(first.dtype))
         return first.clamp(self.low, self.high).unsqueeze(1).expand(-1, self.knots, -1).clone()
 
-    def _warm_start(self, state: TensorDictBase) -> torch.Tensor:
-        fresh = state.get(("task", "step")).reshape(-1) == 0
-        initial = self._initial(state)
+    def warm_start(self, state: TensorDictBase) -> torch.Tensor:
+        """``[N, M, A]``: the previous plans one step later; :meth:`initial` where an episode starts."""
         if self.plan is None:
-            return initial
+            return self.initial(state)
+        fresh = state.get(self.step_key).reshape(-1) == 0
         shifted = torch.einsum("km,nma->nka", self.shift_weights, self.plan)
-        return torch.where(fresh[:, None, None], initial, shifted)
+        return torch.where(fresh[:, None, None], self.initial(state), shifted)
 
     # ---------------------------------------------------------------------------------------- rollouts
     def plan_return(self, env, state: TensorDictBase, knots: torch.Tensor) -> torch.Tensor:
@@ -192,8 +213,9 @@ class PredictiveSampler(TensorDictModuleBase):
         return total.squeeze(-1)
 
     @torch.no_grad()
-    def _sample(self, state: TensorDictBase, nominal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The best of the nominal and ``candidates − 1`` noisy copies: ``(knots [N, M, A], return [N])``."""
+    def sample(self, state: TensorDictBase, nominal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The nominal plans and ``candidates − 1`` noisy copies of them, rolled out from ``state`` [N]:
+        ``(candidates [N, K, M, A], returns [N, K])``, candidate 0 the nominal."""
         n, k = self.num_worlds, self.candidates
         scale = self.noise * (self.high - self.low) / 2
         noise = torch.randn(n, k - 1, *nominal.shape[1:], generator=self.generator, dtype=nominal.dtype,
@@ -201,16 +223,14 @@ class PredictiveSampler(TensorDictModuleBase):
         candidates = torch.cat([nominal.unsqueeze(1), (nominal.unsqueeze(1) + noise).clamp(self.low, self.high)], 1)
         returns = self.plan_return(self.sample_env, state.repeat_interleave(k, dim=0),
                                    candidates.flatten(0, 1)).view(n, k)
-        best = returns.argmax(1)  # ties go to the lowest index: the nominal wins a tie
-        rows = torch.arange(n, device=best.device)
         self.stats["sim_steps"] += n * k * self.horizon
-        self.stats["noisy_wins"] += int((best > 0).sum())
-        return candidates[rows, best], returns[rows, best]
+        return candidates, returns
 
-    def _refine(self, state: TensorDictBase, knots: torch.Tensor, best_return: torch.Tensor):
-        """``refine_steps`` gradient-ascent steps on the plans' returns; per world, the best plan seen (the
-        sampled one unless a refined one re-evaluates at least as high): ``(knots, return)``."""
-        best, best_return, sampled_return = knots, best_return, best_return
+    def refine(self, state: TensorDictBase, knots: torch.Tensor, best_return: torch.Tensor):
+        """``refine_steps`` gradient-ascent steps on the returns of plans ``knots`` [N, M, A] (whose returns are
+        ``best_return`` [N]); per world, the best plan seen: the given one unless a refined one re-evaluates at
+        least as high. Returns ``(knots, return)``."""
+        best, sampled_return = knots, best_return
         knots = knots.clone().requires_grad_(True)
         if self.refine_optimizer == "adam":  # elementwise: each world's knots take their own step sizes
             optimizer = torch.optim.Adam([knots], lr=self.refine_lr, maximize=True)
@@ -219,11 +239,11 @@ class PredictiveSampler(TensorDictModuleBase):
         n = self.num_worlds
         for i in range(self.refine_steps + 1):
             last = i == self.refine_steps
-            with torch.set_grad_enabled(not last):  # the last pass only re-evaluates the final step's plan
+            with torch.set_grad_enabled(not last):  # the last pass only re-evaluates the last step's plan
                 ret = self.plan_return(self.refine_env, state, knots)
-                objective = ret.sum()  # worlds are independent: the sum's gradient is each world's own
+                objective = ret.sum()  # the worlds are independent: the sum's gradient is each world's own
             self.stats["sim_steps"] += n * self.horizon
-            if i > 0:  # pass 0 is the sampled plan itself: its gradient is all it adds
+            if i > 0:  # pass 0 is the given plan itself: only its gradient is new
                 better = ret.detach() >= best_return
                 best = torch.where(better[:, None, None], knots.detach(), best)
                 best_return = torch.where(better, ret.detach(), best_return)
@@ -235,8 +255,7 @@ class PredictiveSampler(TensorDictModuleBase):
             with torch.no_grad():
                 # stiff contact can overflow one world's float32 adjoint; that world skips the step, the others
                 # are unaffected (their gradients do not depend on it)
-                finite = torch.isfinite(knots.grad).flatten(1).all(1)
-                knots.grad[~finite] = 0.0
+                knots.grad[~torch.isfinite(knots.grad).flatten(1).all(1)] = 0.0
             optimizer.step()
             with torch.no_grad():
                 knots.clamp_(self.low, self.high)
@@ -249,28 +268,32 @@ class PredictiveSampler(TensorDictModuleBase):
         if tuple(tensordict.batch_size) != (self.num_worlds,):
             raise ValueError(f"the planner was built for {self.num_worlds} worlds, got a TensorDict of batch size "
                              f"{tuple(tensordict.batch_size)}")
-        state = tensordict.select(*STATE).detach()
-        plan, ret = self._sample(state, self._warm_start(state))
+        state = tensordict.select(*self.state_keys).detach()
+        candidates, returns = self.sample(state, self.warm_start(state))
+        best = returns.argmax(1)  # a tie goes to the lowest index: the nominal keeps its place
+        rows = torch.arange(self.num_worlds, device=best.device)
+        plan, ret = candidates[rows, best], returns[rows, best]
+        self.stats["noisy_wins"] += int((best > 0).sum())
         if self.refine_steps:
-            plan, ret = self._refine(state, plan, ret)
+            plan, ret = self.refine(state, plan, ret)
         self.plan = plan
         self.stats["control_steps"] += 1
         if self.progress is not None:
             self.progress.update(1)
             self.progress.set_postfix(plan_return=f"{float(ret.mean()):.2f}")
-        return tensordict.set("action", self.actions(plan[:, :1])[:, 0])
+        return tensordict.set("action", self.actions(plan)[:, 0])
 
     def budget(self) -> dict:
-        """Stated compute per control step and evaluation world, and what the planner has spent so far."""
+        """The stated compute per control step and evaluation world, and what the planner has spent so far."""
         s, n = self.stats, max(self.stats["control_steps"] * self.num_worlds, 1)
+        refine_passes = self.refine_steps + 1 if self.refine_steps else 0
         return {
-            "sim_steps_per_control_step": (self.candidates + (self.refine_steps + 1 if self.refine_steps else 0))
-            * self.horizon,
+            "sim_steps_per_control_step": (self.candidates + refine_passes) * self.horizon,
             "grad_steps_per_control_step": self.refine_steps * self.horizon,
             "sim_steps": s["sim_steps"], "grad_steps": s["grad_steps"],
-            "noisy_candidate_win_rate": s["noisy_wins"] / n,  # a sampled plan beat the shifted nominal
-            "refinement_win_rate": s["refined_wins"] / n if self.refine_steps else 0.0,
-            "mean_refinement_gain": s["refine_gain"] / n if self.refine_steps else 0.0,  # return gained
+            "noisy_candidate_win_rate": s["noisy_wins"] / n,  # a noisy plan beat the shifted nominal
+            "refinement_win_rate": s["refined_wins"] / n,  # refinement raised the plan's return
+            "mean_refinement_gain": s["refine_gain"] / n,  # the return it added, per world and control step
         }
 
 
@@ -288,8 +311,8 @@ def train(cfg) -> dict:
     writer = RunWriter(cfg)
     torch.manual_seed(cfg.seed)
     episodes = cfg.eval.episodes
-    planner = PredictiveSampler(cfg.task, episodes, **{name: a[name] for name in PLANNER_FIELDS},
-                                device=cfg.device, seed=cfg.seed)
+    planner = PredictiveSampler.for_task(cfg.task, episodes, **{name: a[name] for name in PLANNER_FIELDS},
+                                         device=cfg.device, seed=cfg.seed)
     steps = planner.sample_env.max_episode_steps
     budget = planner.budget()
     log.info("mpc %s: %d episodes, %d candidates x %d steps (+%d refinement steps): %d sim steps (+%d backward) "
