@@ -46,7 +46,8 @@ from ..envs import make_env
 from .common import RunWriter
 from .evaluation import evaluate_policy
 
-__all__ = ["INTERPOLATIONS", "PredictiveSampler", "check_config", "spline_weights", "train"]
+__all__ = ["INTERPOLATIONS", "PLANNER_FIELDS", "PredictiveSampler", "STATE", "check_config", "spline_weights",
+           "train"]
 
 log = logging.getLogger(__name__)
 
@@ -126,8 +127,8 @@ class PredictiveSampler(TensorDictModuleBase):
     ``progress``: a tqdm bar advanced once per control step (or None). See the module docstring for a step.
     """
 
-    def __init__(self, sample_env, refine_env=None, *, num_worlds: int, candidates: int = 32, horizon: int = 15,
-                 knots: int = 4, noise: float = 0.1, interpolation: str = "linear", refine_steps: int = 2,
+    def __init__(self, sample_env, refine_env=None, *, num_worlds: int, candidates: int = 32, horizon: int = 30,
+                 knots: int = 4, noise: float = 0.5, interpolation: str = "linear", refine_steps: int = 2,
                  refine_lr: float = 0.05, refine_optimizer: str = "adam", initial_plan: str = "hold",
                  state_keys=STATE, step_key=("task", "step"), seed: int = 0, progress=None):
         super().__init__()
