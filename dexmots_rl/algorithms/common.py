@@ -26,6 +26,7 @@ from torch import nn
 from torchrl.envs import ClipTransform, RewardSum, VecNorm
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
+from ..atomic import atomic_write_json
 from ..envs import make_env
 from .checkpoint import save_checkpoint
 from .evaluation import evaluate_policy, periodic_episodes
@@ -198,10 +199,15 @@ class RunWriter:
             self.log({"iteration": counters["iteration"],
                       **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
             return ev
+        return self.write_result(ev, counters, budget=budget)
+
+    def write_result(self, ev: dict, counters: dict, budget: dict | None = None, **extra) -> dict:
+        """``metrics.json``: the evaluation ``ev``, the run's counters and ``extra`` entries; returns it."""
+        cfg = self.cfg
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "budget": budget or {}, "run_dir": str(self.dir)}
-        (self.dir / "metrics.json").write_text(json.dumps(result, indent=2))
+                  "budget": budget or {}, **extra, "run_dir": str(self.dir)}
+        atomic_write_json(self.dir / "metrics.json", result)  # a sweep's restart trusts a complete file
         log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,
                  ev["success_rate"], counters["env_steps"], counters["wall_clock_s"])
         return result
