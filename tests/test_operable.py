@@ -141,3 +141,13 @@ def test_range_stop_holds_the_part_and_its_gradient_matches_finite_differences()
     fd = torch.stack([(final_angle(x.detach() + eps * e) - final_angle(x.detach() - eps * e)) / (2 * eps)
                       for e in torch.eye(2, dtype=torch.float64)])
     assert torch.allclose(grad, fd, rtol=1e-5, atol=1e-8), (grad, fd)
+
+
+@pytest.mark.parametrize("name", OPERABLE)
+def test_explicit_joint_friction_is_stable_over_the_randomised_range(name):
+    """The part's Coulomb friction f tanh(v / 0.05) is explicit: per substep it must not flip the velocity
+    (dt f / (0.05 I) < 1), or a light part chatters about rest (the spray trigger did, without armature)."""
+    env = make_env(name, num_envs=1, seed=0)
+    sim = env.base_env.sim
+    f_max = env.base_env.config.friction_range[1]
+    assert sim.dt / sim.substeps * f_max / (0.05 * float(sim.model.obj_axial_inertia)) < 1.0
