@@ -3,6 +3,8 @@
 * :mod:`.shac` — SHAC / AHAC through the differentiable simulator (``dexmots-train algo=shac|ahac``);
 * :mod:`.ppo`, :mod:`.sac` — model-free baselines with torchrl's losses (``dexmots-train algo=ppo|sac``),
   sharing :mod:`.common` (training env with VecNorm, tanh-Gaussian actor, run directory);
+* :mod:`.pgdm` — PGDM (``dexmots-train algo=pgdm``): :mod:`.ppo` with PGDM's observation, object-tracking
+  reward and action-bias warm start;
 * :mod:`.networks`, :mod:`.checkpoint`, :mod:`.evaluation`, :mod:`.distributed` — shared pieces.
 
 Submodules are imported on use, so importing this package does not load the simulator.
@@ -10,4 +12,4 @@ Submodules are imported on use, so importing this package does not load the simu
 
 from __future__ import annotations
 
-__all__ = ["checkpoint", "common", "distributed", "evaluation", "networks", "ppo", "sac", "shac"]
+__all__ = ["checkpoint", "common", "distributed", "evaluation", "networks", "pgdm", "ppo", "sac", "shac"]
