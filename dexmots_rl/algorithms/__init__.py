@@ -4,6 +4,8 @@
 * :mod:`.ppo`, :mod:`.sac` — model-free baselines with torchrl's losses (``dexmots-train algo=ppo|sac``),
   sharing :mod:`.common` (training env with VecNorm, tanh-Gaussian actor, run directory);
 * :mod:`.mpc` — predictive-sampling MPC with gradient refinement, evaluation only (``dexmots-train algo=mpc``);
+* :mod:`.pgdm` — PGDM (``dexmots-train algo=pgdm``): :mod:`.ppo` with PGDM's observation, object-tracking
+  reward and action-bias warm start;
 * :mod:`.networks`, :mod:`.checkpoint`, :mod:`.evaluation`, :mod:`.distributed` — shared pieces.
 
 Submodules are imported on use, so importing this package does not load the simulator.
@@ -11,4 +13,4 @@ Submodules are imported on use, so importing this package does not load the simu
 
 from __future__ import annotations
 
-__all__ = ["checkpoint", "common", "distributed", "evaluation", "mpc", "networks", "ppo", "sac", "shac"]
+__all__ = ["checkpoint", "common", "distributed", "evaluation", "mpc", "networks", "pgdm", "ppo", "sac", "shac"]

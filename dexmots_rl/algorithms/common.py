@@ -1,11 +1,13 @@
-"""Pieces the model-free baselines (PPO, SAC) share: the training env, the policy, the run directory.
+"""Pieces the model-free baselines (PPO, SAC, PGDM) share: the training env, the policy, the run directory.
 
-* :func:`make_train_env` — ``make_env(task, differentiable=False)`` plus torchrl's ``VecNorm`` (new API) and a
-  clip on ``"observation"`` and an episode-return counter: the env the collector steps.
+* :func:`make_train_env` — ``make_env(task, differentiable=False)`` (plus a method's own transforms, e.g.
+  PGDM's observation and reward) and torchrl's ``VecNorm`` (new API), a clip on ``"observation"`` and an
+  episode-return counter: the env the collector steps.
 * :func:`tanh_gaussian_actor` — a ``ProbabilisticActor`` (``TanhNormal`` within the env's action bounds) on an
   MLP; the scale is state-independent (PPO) or a second head (SAC).
 * :class:`ObsNorm` / :func:`deployable_policy` — the training env's normalisation frozen into a module in
-  front of the actor, so the policy runs on the *plain* task env (``evaluate_policy``, ``dexmots-eval``).
+  front of the actor (after, for PGDM, the module that rebuilds its observation), so the policy runs on the
+  *plain* task env (``evaluate_policy``, ``dexmots-eval``).
 * :func:`policy_from_data` — that policy rebuilt from a checkpoint (``policy_from_checkpoint`` dispatches
   here for ``algo`` in :data:`BASELINES`).
 * :func:`batch_metrics`, :class:`RunWriter` — one ``metrics.jsonl`` row per iteration, checkpoints and the final
@@ -37,14 +39,17 @@ __all__ = ["BASELINES", "ObsNorm", "RunWriter", "batch_metrics", "deployable_pol
 
 log = logging.getLogger(__name__)
 
-BASELINES = ("ppo", "sac")  # algos whose checkpoints hold a "policy" module built here
+BASELINES = ("ppo", "sac", "pgdm")  # algos whose checkpoints hold a "policy" module built here
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
-def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float = 10.0):
-    """The task env (exactly ``make_env(cfg.task)``, not differentiable) with a running normalisation of
+def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float = 10.0, transforms=()):
+    """The task env (exactly ``make_env(cfg.task)``, not differentiable), then ``transforms`` (a method's
+    own observation / reward, applied before the normalisation), with a running normalisation of
     ``"observation"``, clipped to ±``obs_clip``, and ``"episode_reward"``. Returns ``(env, vecnorm)``."""
     env = make_env(cfg.task, differentiable=False, seed=seed, device=cfg.device)
+    for transform in transforms:
+        env.append_transform(transform)
     # reduce_batch_dims: the worlds are one batch of samples of the same distribution, not separate streams
     vecnorm = VecNorm(in_keys=["observation"], new_api=True, reduce_batch_dims=True, decay=norm_decay)
     with warnings.catch_warnings():  # "experimental for a batched env": it is what reduce_batch_dims is for
@@ -100,32 +105,45 @@ class ObsNorm(nn.Module):
         return ((x - self.loc) / self.scale).clamp(-self.clip, self.clip)
 
 
-def deployable_policy(actor, obs_dim: int, obs_clip: float = 10.0) -> TensorDictSequential:
+def deployable_policy(actor, obs_dim: int, obs_clip: float = 10.0, observation=None) -> TensorDictSequential:
     """``actor`` behind an :class:`ObsNorm` that rewrites ``"observation"`` as the training env did, so the
-    policy acts on the plain task env (``evaluate_policy``). Keep it current with :func:`sync_obs_norm`."""
+    policy acts on the plain task env (``evaluate_policy``). Keep it current with :func:`sync_obs_norm`.
+    ``observation``: a module first writing ``"observation"`` as the training env's own transforms did (a
+    method whose observation is not the task's, PGDM), from the entries the plain env writes."""
     norm = TensorDictModule(ObsNorm(obs_dim, obs_clip), in_keys=["observation"], out_keys=["observation"])
-    return TensorDictSequential(norm, actor)
+    return TensorDictSequential(*([] if observation is None else [observation]), norm, actor)
+
+
+def _obs_norm(policy: TensorDictSequential) -> ObsNorm:
+    return next(m for m in policy.modules() if isinstance(m, ObsNorm))
 
 
 @torch.no_grad()
 def sync_obs_norm(policy: TensorDictSequential, vecnorm) -> None:
     """Copy the training env's current normalisation statistics into ``policy``'s :class:`ObsNorm`."""
-    norm = policy[0].module
+    norm = _obs_norm(policy)
     obs_norm = vecnorm.to_observation_norm()  # torchrl's frozen equivalent: loc and scale (already eps-clamped)
     norm.loc.copy_(obs_norm.loc)
     norm.scale.copy_(obs_norm.scale)
 
 
-def _policy_for(cfg, obs_dim: int, action_spec) -> TensorDictSequential:
+def _policy_for(cfg, obs_dim: int, action_spec, observation=None) -> TensorDictSequential:
     algo = cfg["algo"]
     actor = tanh_gaussian_actor(obs_dim, action_spec, algo["hidden"], algo["activation"],
                                 state_scale=algo["name"] == "sac", init_log_std=algo.get("init_log_std", 0.0))
-    return deployable_policy(actor, obs_dim, algo.get("obs_clip", 10.0))
+    return deployable_policy(actor, obs_dim, algo.get("obs_clip", 10.0), observation=observation)
 
 
 def policy_from_data(data: dict, env) -> TensorDictSequential:
-    """The normaliser + actor of a PPO / SAC checkpoint ``data``, on the plain task ``env``'s specs."""
-    policy = _policy_for(data["config"], env.observation_spec["observation"].shape[-1], env.action_spec_unbatched)
+    """The normaliser + actor of a PPO / SAC / PGDM checkpoint ``data``, on the plain task ``env``'s specs
+    (PGDM's observation module is rebuilt from the checkpoint's ``algo`` section and ``env``'s task)."""
+    observation, obs_dim = None, env.observation_spec["observation"].shape[-1]
+    if data["config"]["algo"]["name"] == "pgdm":
+        from .pgdm import policy_observation  # imported on use: pgdm imports this module
+
+        observation = policy_observation(data["config"]["algo"], env)
+        obs_dim = observation.width
+    policy = _policy_for(data["config"], obs_dim, env.action_spec_unbatched, observation)
     policy.load_state_dict(data["modules"]["policy"])
     return policy
 

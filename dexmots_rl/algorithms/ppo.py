@@ -11,6 +11,9 @@ the current critic, then Adam steps on shuffled minibatches of the clipped PPO o
 (gradient norm clipped) -> learning rate annealed linearly. The run directory is :mod:`.shac`'s:
 ``metrics.jsonl`` per iteration, ``checkpoints/last.pt`` (``dexmots-eval`` reloads it), ``metrics.json``
 with the final deterministic evaluation.
+
+A method that is PPO with another observation, reward, start or initialisation (PGDM, :mod:`.pgdm`) passes
+a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import logging
 import math
 import sys
 import time
+from dataclasses import dataclass
+from typing import Callable, Optional
 
 import torch
 from omegaconf import DictConfig
@@ -33,19 +38,40 @@ from .budget import RunBudget
 from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
     tanh_gaussian_actor
 
-__all__ = ["build", "train"]
+__all__ = ["PLAIN_PPO", "PPOVariant", "build", "train"]
 
 log = logging.getLogger(__name__)
 
 
-def build(cfg: DictConfig):
+@dataclass(frozen=True)
+class PPOVariant:
+    """What a method built on this PPO changes; the defaults are plain PPO on the task."""
+
+    #: () -> the transforms appended to the task env before the normalisation (fresh ones per env)
+    env_transforms: Callable[[], list] = list
+    #: (training env) -> the module the deployable policy runs first, writing ``"observation"`` on the plain
+    #: task env as ``env_transforms`` did; None: the task's own ``"observation"``
+    policy_observation: Optional[Callable] = None
+    #: (actor, training env) -> None: changes the fresh actor's parameters in place (a warm start)
+    init_actor: Optional[Callable] = None
+    #: the ``("next", key)`` entry the critic and the advantages learn from
+    reward_key: str = "reward"
+
+
+PLAIN_PPO = PPOVariant()
+
+
+def build(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO):
     """Env (+ its VecNorm), actor, critic, GAE, loss and optimiser of a run."""
     torch.manual_seed(cfg.seed)
     a = cfg.algo
-    env, vecnorm = make_train_env(cfg, seed=cfg.seed, norm_decay=a.obs_norm_decay, obs_clip=a.obs_clip)
+    env, vecnorm = make_train_env(cfg, seed=cfg.seed, norm_decay=a.obs_norm_decay, obs_clip=a.obs_clip,
+                                  transforms=variant.env_transforms())
     obs_dim = env.observation_spec["observation"].shape[-1]
     actor = tanh_gaussian_actor(obs_dim, env.action_spec_unbatched, a.hidden, a.activation,
                                 init_log_std=a.init_log_std, return_log_prob=True)  # PPO needs the old log-prob
+    if variant.init_actor is not None:
+        variant.init_actor(actor, env)
     critic = ValueOperator(mlp(obs_dim, 1, a.hidden, a.activation, out_gain=1.0), in_keys=["observation"])
     # separate actor and critic networks (no shared trunk), so the critic coefficient only scales the critic
     gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=critic, average_gae=False)
@@ -57,12 +83,13 @@ def build(cfg: DictConfig):
     return env, vecnorm, actor, critic, gae, loss, optimizer
 
 
-def train(cfg: DictConfig) -> dict:
+def train(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO) -> dict:
     """Train a PPO run; returns the final metrics dict (also written to ``metrics.json``)."""
     a = cfg.algo
     writer = RunWriter(cfg)
-    env, vecnorm, actor, critic, gae, loss, optimizer = build(cfg)
-    policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
+    env, vecnorm, actor, critic, gae, loss, optimizer = build(cfg, variant)
+    front = None if variant.policy_observation is None else variant.policy_observation(env)
+    policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip, observation=front)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
     # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
@@ -70,7 +97,7 @@ def train(cfg: DictConfig) -> dict:
                           device=cfg.device, exploration_type=ExplorationType.RANDOM,
                           auto_register_policy_transforms=False)
     counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
-    bar = tqdm(total=iterations, desc=f"ppo {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
+    bar = tqdm(total=iterations, desc=f"{a.name} {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
     budget, stopped_by = RunBudget.from_config(cfg), None
     t_start = time.perf_counter()
     for data in collector:
@@ -78,7 +105,7 @@ def train(cfg: DictConfig) -> dict:
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
         updates = 0
         # screw_claw's returns are ~1e2: scaled, the critic's targets are O(1-10) (rl_games' reward x 0.01)
-        data.set(("next", "reward_scaled"), data.get(("next", "reward")) * a.reward_scale)
+        data.set(("next", "reward_scaled"), data.get(("next", variant.reward_key)) * a.reward_scale)
         for _ in range(a.epochs):
             with torch.no_grad():  # advantages with the current critic, every epoch (sota's recipe)
                 gae(data)
@@ -109,6 +136,8 @@ def train(cfg: DictConfig) -> dict:
         counters["wall_clock_s"] = time.perf_counter() - t_start
         row = {**batch_metrics(data, counters), **{k: v / max(updates, 1) for k, v in stats.items()},
                "lr": optimizer.param_groups[0]["lr"], "policy_std": float(data.get("scale").mean())}
+        if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
+            row[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
         writer.log(row)
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",

@@ -4,7 +4,7 @@
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
-    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac (no resume)
+    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac | pgdm (no resume)
     dexmots-train algo=mpc                          # sampling MPC + gradient refinement: evaluation only
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
@@ -25,7 +25,7 @@ __all__ = ["CONFIG_DIR", "TRAINERS", "config_dir", "main"]
 
 #: algo name -> the module of :mod:`dexmots_rl.algorithms` whose ``train(cfg)`` runs it (imported on use: each
 #: pulls in only what it needs); ``dexmots-table`` reads it to know which methods can run
-TRAINERS = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac", "mpc": "mpc"}
+TRAINERS = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac", "pgdm": "pgdm", "mpc": "mpc"}
 
 
 def config_dir() -> Path:
