@@ -31,6 +31,7 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 
 from . import asset_path
@@ -138,8 +139,6 @@ def _vec(v) -> str:
 
 
 def _box_geom(box: Box, rgba: str, indent: str) -> str:
-    import math
-
     quat = f' quat="{_vec((math.cos(box.yaw / 2), 0.0, 0.0, math.sin(box.yaw / 2)))}"' if box.yaw else ""
     return (f'{indent}<geom name="{box.name}" type="box" pos="{_vec(box.pos)}" size="{_vec(box.half)}"{quat} '
             f'contype="2" conaffinity="1" rgba="{rgba}"/>\n')
@@ -147,8 +146,6 @@ def _box_geom(box: Box, rgba: str, indent: str) -> str:
 
 def scene_xml(obj: OperableObject) -> str:
     """The MJCF text of the Allegro hand (``allegro_knob.xml``'s) with ``obj`` in place of the knob."""
-    import math
-
     hand = asset_path("allegro_knob.xml").read_text()
     start, end = hand.index('    <body name="hand"'), hand.index('    <body name="object"')
     hand_body = hand[start:end]

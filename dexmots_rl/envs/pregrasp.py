@@ -106,11 +106,18 @@ def check_pregrasp(scene_path, q_hand, regions, touch_tolerance: float = 0.005,
 
     from ..sim import load_scene
 
-    scene = load_scene(scene_path)
     model = mujoco.MjModel.from_xml_path(str(scene_path))
-    data = mujoco.MjData(model)
-    nu = scene.num_hand_dofs
-    data.qpos[:nu] = q_hand
+    return _check(model, mujoco.MjData(model), load_scene(scene_path), q_hand, regions, touch_tolerance,
+                  max_penetration)
+
+
+def _check(model, data, scene, q_hand, regions, touch_tolerance: float = 0.005,
+           max_penetration: float = 0.003) -> tuple[bool, dict]:
+    """:func:`check_pregrasp` on an already compiled model (``data`` is overwritten)."""
+    import mujoco
+
+    data.qpos[:] = model.qpos0
+    data.qpos[:scene.num_hand_dofs] = q_hand
     mujoco.mj_forward(model, data)
     sites = _finger_sites(model, scene)
     body = {mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in ("object", "object_base")}
@@ -180,7 +187,7 @@ def find_pregrasps(scene_path, regions, hint, candidates: int = 8, seed: int = 0
     settled = np.clip(joint_q[:, :nu].numpy(), scene.dof_lower, scene.dof_upper)
     kept = []
     for c in range(candidates):
-        ok, details = check_pregrasp(scene_path, settled[c], regions)
+        ok, details = _check(model, data, scene, settled[c], regions)  # the scene compiled once, above
         log.info("pregrasp candidate %d: %s %s", c, "kept" if ok else "rejected", details)
         if ok:
             kept.append(settled[c])

@@ -99,8 +99,6 @@ class KnobTurnEnv(DexEnv):
             return torch.as_tensor(x, dtype=self.dtype, device=self.device)
 
         self._lower, self._upper = t(scene.dof_lower), t(scene.dof_upper)
-        # the knobs have no spring: their reference torque (and its float rounding) stays as it was
-        self._sprung = scene.object_stiffness > 0 or "joint_stiffness" in self._param_ranges()
         self._axis = t(scene.object_base_rot @ scene.object_axis)
         self._knob_pos = t(scene.object_base_pos)
         self._nominal = (scene.object_damping, scene.object_friction, scene.object_stiffness, scene.object_rest)
@@ -158,8 +156,8 @@ class KnobTurnEnv(DexEnv):
                                                   for name in ("joint_damping", "joint_friction", "joint_stiffness",
                                                                "joint_rest"))
         torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
-        if self._sprung:  # a sprung part (spray trigger, stapler arm) is held against its spring
-            torque = torque + stiffness * (angle - rest)
+        # a sprung part (spray trigger, stapler arm) is held against its spring; a knob's stiffness is 0
+        torque = torque + stiffness * (angle - rest)
         return angle, torque
 
     def reference(self, td, steps: torch.Tensor) -> TensorDict:
