@@ -139,3 +139,20 @@ def test_actions_for_targets_inverts_targets(fake_sim):
     vi = ActionMap(fake_sim, "vi")
     a = torch.tensor([[-1.0, -0.3, 0.4, 1.0]], dtype=vi.lower.dtype)
     torch.testing.assert_close(vi.actions_for_targets(vi.targets(a)), a)
+
+
+def test_a_task_center_is_the_zero_action_and_keeps_the_full_range(fake_sim):
+    lower, upper = ActionMap(fake_sim, "vi").lower, ActionMap(fake_sim, "vi").upper
+    center = lower + 0.8 * (upper - lower)  # far from mid-range
+    m = ActionMap(fake_sim, "position", center=center.tolist())
+    ones = torch.ones(1, fake_sim.nu, dtype=torch.float64)
+    torch.testing.assert_close(m.targets(0 * ones)[0], center)
+    torch.testing.assert_close(m.targets(-ones)[0], lower)
+    torch.testing.assert_close(m.targets(ones)[0], upper)
+    a = torch.linspace(-1, 1, 4 * fake_sim.nu, dtype=torch.float64).reshape(4, fake_sim.nu)
+    torch.testing.assert_close(m.actions_for_targets(m.targets(a)), a)
+    sweep = torch.linspace(-1, 1, 9, dtype=torch.float64)[:, None].expand(9, fake_sim.nu)
+    assert (torch.diff(m.targets(sweep), dim=0) > 0).all()  # monotone on both sides of the center
+    for bad in (upper.tolist(), center.tolist()[:-1]):  # on a limit; one joint short
+        with pytest.raises(ValueError, match="action center"):
+            ActionMap(fake_sim, "vi", center=bad)

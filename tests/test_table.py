@@ -171,3 +171,13 @@ def test_a_tiny_real_sweep_end_to_end(tmp_path):
     assert (result["launched"], result["unfinished"]) == (1, 0)
     row = read_csv(tmp_path / "sweep" / "runs.csv")[0]
     assert row["status"] == "finished" and row["env_steps"] == 24 and row["stopped_by"] == "schedule"
+
+
+def test_learning_rate_schedules_end_with_the_budget():
+    from dexmots_rl.algorithms.budget import RunBudget
+
+    counters = {"wall_clock_s": 30.0, "env_steps": 9000}
+    assert RunBudget().progress(counters, schedule=0.2) == 0.2  # no budget: the schedule alone
+    assert RunBudget(wall_clock_s=60.0).progress(counters, schedule=0.2) == 0.5
+    assert RunBudget(wall_clock_s=60.0, env_steps=10000).progress(counters, schedule=0.2) == 0.9
+    assert RunBudget(env_steps=5000).progress(counters, schedule=0.2) == 1.0  # past the budget: annealed

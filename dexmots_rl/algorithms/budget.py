@@ -5,8 +5,8 @@ Each trainer still has its own schedule (``algo.iterations``, ``algo.total_frame
 whichever comes first: the schedule's end or the budget. A budget stop is a normal end: checkpoint, final
 evaluation, ``metrics.json`` (whose ``budget`` entry records the limits and ``stopped_by``). Training time
 leaves out the periodic evaluations (the trainers pause the clock around them), so a method evaluated
-more often does not lose training time; the learning-rate schedules still follow the schedule, not the
-budget.
+more often does not lose training time. Linear learning-rate decays follow whichever end comes first
+(:meth:`RunBudget.progress`): a run cut by its budget has annealed, as it would have at its schedule's end.
 
 Example:
     >>> budget = RunBudget(wall_clock_s=60.0, env_steps=None)
@@ -14,6 +14,8 @@ Example:
     True
     >>> budget.reached({"wall_clock_s": 61.0, "env_steps": 9000})
     'wall_clock_s'
+    >>> budget.progress({"wall_clock_s": 30.0, "env_steps": 5000}, schedule=0.1)
+    0.5
     >>> budget.record("wall_clock_s")
     {'wall_clock_s': 60.0, 'env_steps': None, 'stopped_by': 'wall_clock_s'}
 """
@@ -46,6 +48,16 @@ class RunBudget:
         if self.env_steps is not None and counters["env_steps"] >= self.env_steps:
             return "env_steps"
         return None
+
+    def progress(self, counters: dict, schedule: float) -> float:
+        """How far the run is to its end, in [0, 1]: the largest of ``schedule`` (the fraction of the
+        trainer's own schedule done) and the fraction of each limit used."""
+        done = [schedule]
+        if self.wall_clock_s is not None:
+            done.append(counters["wall_clock_s"] / self.wall_clock_s)
+        if self.env_steps is not None:
+            done.append(counters["env_steps"] / self.env_steps)
+        return min(1.0, max(0.0, *done))
 
     def record(self, stopped_by: str | None) -> dict:
         """``metrics.json``'s ``budget`` entry; ``stopped_by`` ``None`` means the schedule ended the run."""

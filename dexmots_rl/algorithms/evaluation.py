@@ -51,7 +51,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         _record(task_cfg, rollout, record, record_worlds, live)
     nxt = rollout.get("next")
     success = nxt.get("success").squeeze(-1)  # [N, T]
-    final_error = (nxt.get("achieved_goal")[:, -1] - nxt.get(("task", "goal"))[:, -1]).norm(dim=-1)
+    final_error = base.goal_error(nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1])
     won = success[:, -1]
     first = torch.where(success.any(-1), success.float().argmax(-1), torch.full_like(won, -1, dtype=torch.long))
     tts = (first[won] + 1).float() * base.sim.dt

@@ -125,11 +125,12 @@ def train(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO) -> dict:
                     if key in out.keys():
                         stats["kl" if key == "kl_approx" else key] += float(out[key].detach())
                 stats["grad_norm"] += float(grad_norm)
-        # linear learning-rate annealing to 0 over the run (CleanRL's anneal_lr)
+        # linear learning-rate annealing to 0 over the run (CleanRL's anneal_lr), ending with the budget if that
+        # comes first
         counters["iteration"] += 1
         if a.anneal_lr:
             for group in optimizer.param_groups:
-                group["lr"] = a.lr * (1.0 - counters["iteration"] / iterations)
+                group["lr"] = a.lr * (1.0 - budget.progress(counters, counters["iteration"] / iterations))
         collector.update_policy_weights_()  # single process: the collector already holds this actor
 
         counters["env_steps"] += data.numel()

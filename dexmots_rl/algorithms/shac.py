@@ -165,7 +165,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     interrupted = False
     while counters["iteration"] < stop_at and not interrupted and stopped_by is None:
         it = counters["iteration"]
-        frac = 1.0 - it / iterations if cfg.algo.lr_decay == "linear" else 1.0
+        frac = 1.0 - budget.progress(counters, it / iterations) if cfg.algo.lr_decay == "linear" else 1.0
         for opt, lr in ((actor_opt, cfg.algo.actor_lr), (critic_opt, cfg.algo.critic_lr)):
             for group in opt.param_groups:
                 group["lr"] = lr * frac

@@ -1,7 +1,8 @@
 """Action spaces: map a policy action in [-1, 1] to the simulator's joint-space drive.
 
 * ``"torque"``: ``tau = a * gear`` (the MJCF motor gear per joint).
-* ``"position"``: PD targets spanning the joint range, ``q* = lower + (a + 1) / 2 * (upper - lower)``,
+* ``"position"``: PD targets spanning the joint range, ``q* = lower + (a + 1) / 2 * (upper - lower)``
+  (or, when the task names a ``center`` pose, piecewise linear: a = -1, 0, +1 give lower, center, upper),
   stiffness ``kp = stiffness_frequency^2 * I0`` per joint (``I0``: joint-space inertia at q = 0) and
   critical damping ``kd = 2 sqrt(kp * I0)``; the simulator integrates both terms implicitly.
 * ``"vi"`` (variable impedance): ``2 nu`` entries. The first ``nu`` are PD targets mapped like
@@ -59,7 +60,7 @@ class ActionMap:
         (8, (2, 4))
     """
 
-    def __init__(self, sim: Simulator, kind: str = "torque", stiffness_frequency: float = 20.0):
+    def __init__(self, sim: Simulator, kind: str = "torque", stiffness_frequency: float = 20.0, center=None):
         if kind not in ACTION_TYPES:
             raise ValueError(f"action type {kind!r} is unknown; known: {', '.join(ACTION_TYPES)}")
         self.kind, self.num_worlds, self.nu = kind, sim.num_worlds, sim.nu
@@ -73,6 +74,14 @@ class ActionMap:
         finite = scene.dof_limited
         self.lower = t(scene.dof_lower * finite - math.pi * (1 - finite))
         self.upper = t(scene.dof_upper * finite + math.pi * (1 - finite))
+        # the joint targets of a = 0: mid-range, or the task's default pose (a palm-up hand whose mid-range
+        # pose is far from the cube would otherwise start every policy with its fingers off the object)
+        self._mid_center = center is None
+        self.center = 0.5 * (self.lower + self.upper) if center is None else t(center)
+        if self.center.shape != self.lower.shape or not bool(
+                ((self.center > self.lower) & (self.center < self.upper)).all()):
+            raise ValueError(f"action center must be {self.nu} joint angles strictly inside the joint limits, "
+                             f"got {tuple(center) if center is not None else None}")
         inertia0 = t(scene.dof_inertia0)
         self.kp = stiffness_frequency**2 * inertia0
         self.kd = 2.0 * torch.sqrt(self.kp * inertia0)
@@ -86,12 +95,17 @@ class ActionMap:
         self._zeros = torch.zeros(sim.num_worlds, sim.nu, dtype=sim.dtype, device=sim.torch_device)
 
     def targets(self, a: torch.Tensor) -> torch.Tensor:
-        """Joint targets spanning the joint range for actions ``a`` in [-1, 1] (-1: lower, +1: upper)."""
-        return self.lower + 0.5 * (a + 1.0) * (self.upper - self.lower)
+        """Joint targets spanning the joint range for actions ``a`` in [-1, 1] (-1: lower, 0: center,
+        +1: upper)."""
+        if self._mid_center:  # the symmetric map, written as before so mid-centred tasks keep their numerics
+            return self.lower + 0.5 * (a + 1.0) * (self.upper - self.lower)
+        return self.center + a * torch.where(a < 0, self.center - self.lower, self.upper - self.center)
 
     def actions_for_targets(self, q: torch.Tensor) -> torch.Tensor:
         """The inverse of :meth:`targets`: the actions in [-1, 1] whose joint targets are ``q``."""
-        return 2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0
+        if self._mid_center:
+            return 2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0
+        return (q - self.center) / torch.where(q < self.center, self.center - self.lower, self.upper - self.center)
 
     def stiffness(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(kp, kd)`` for stiffness actions ``s`` in [-1, 1]: log-linear kp, critically damped kd."""

@@ -46,6 +46,7 @@ class DexEnv(EnvBase):
     bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
     contact_params = None  # the scene's ContactParams (None: the defaults, sized for the claw)
     plan_problem = None  # PlanProblem for dexmots-bench plan
+    action_center = None  # hand joint targets of the zero position/vi action (None: mid-range of each joint)
 
     @classmethod
     def asset_path(cls):
@@ -84,7 +85,7 @@ class DexEnv(EnvBase):
         self.dtype = dtype
         self.param_ranges = self._param_ranges()
         self.reference_bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
-        self.actions = ActionMap(self.sim, config.action)
+        self.actions = ActionMap(self.sim, config.action, center=self.action_center)
         self.action_type = config.action
         self._make_specs()
         self.generator = torch.Generator(device=device)
@@ -179,6 +180,12 @@ class DexEnv(EnvBase):
 
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    def goal_error(self, achieved: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """[...] the error the success threshold is compared with, for ``achieved_goal`` and goal tensors
+        [..., goal_dim] (dexmots-eval's mean final error). Default: the Euclidean distance (the angle error of
+        a 1-D articulation); a free body's task returns its rotation angle."""
+        return (achieved - goal).norm(dim=-1)
 
     def task_terminated(self, obs: dict) -> torch.Tensor:
         """[N, 1] bool: worlds whose episode ends early after this step (e.g. a dropped object); none by

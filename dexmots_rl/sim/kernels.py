@@ -412,12 +412,17 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         # drives the object alone with it
         ext_f = vec3(ext[w, 0], ext[w, 1], ext[w, 2])
         ext_t = vec3(ext[w, 3], ext[w, 4], ext[w, 5])
+        hand_f = f_obj
+        hand_t = t_obj
         if wp.static(PALM):
-            # the palm's push on the object: like an external wrench, not part of the fingers' contact
-            # wrench and force reported below
+            # the palm's push on the object: part of the hand's wrench reported below (what the wrench
+            # planner's external wrench stands for: all of the hand's push besides gravity), not of the
+            # fingers' contact force sum (AHAC's contact budget)
             palm_f, palm_t = palm_wrench(m, xo, Ro, vo, wo)
             ext_f = ext_f + palm_f
             ext_t = ext_t + palm_t
+            hand_f = hand_f + palm_f
+            hand_t = hand_t + palm_t
         if wp.static(OBJ_HINGE):
             a = m.obj_base_rot * m.obj_axis
             damp = params[w, P_DAMPING]
@@ -455,8 +460,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             q[ro, o + 5] = rq[1]
             q[ro, o + 6] = rq[2]
         for c in range(3):
-            wrench[ro, c] = wrench[r, c] + inv_substeps * f_obj[c]
-            wrench[ro, 3 + c] = wrench[r, 3 + c] + inv_substeps * t_obj[c]
+            wrench[ro, c] = wrench[r, c] + inv_substeps * hand_f[c]
+            wrench[ro, 3 + c] = wrench[r, 3 + c] + inv_substeps * hand_t[c]
         cforce[ro] = cforce[r] + inv_substeps * c_sum
 
     @wp.func

@@ -52,10 +52,11 @@ class Control:
 class StepOutput(tuple):
     """``(joint_q, joint_qd, wrench, contact_force, body_pose, fingertips)`` after one env step.
 
-    wrench: [N, 6] mean over substeps of the net contact force and torque on the object (world frame,
-    torque about the object origin); contact_force: [N] mean over substeps of the summed normal contact
-    force magnitudes (finger-object contacts and, in scenes with an ``object_base``, finger-base contacts); body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object;
-    fingertips: [N, F, 3].
+    wrench: [N, 6] mean over substeps of the hand's net contact force (N) and torque (N m) on the object
+    (world frame, torque about the object origin): the fingers' and, where the palm collides with a free
+    object, the palm's; contact_force: [N] mean over substeps of the fingers' summed normal contact force
+    magnitudes (N; finger-object contacts and, in scenes with an ``object_base``, finger-base contacts);
+    body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object; fingertips: [N, F, 3].
     """
 
     __slots__ = ()

@@ -9,8 +9,11 @@ success" rule is not used). Success: the full 3-D rotation error ``2 asin(‖(q 
 cube moving more than ``fall_distance`` (0.24 m) from its goal position terminates the episode.
 
 Reference: the orientation slerps from the start to the goal over ``ramp_steps`` steps and the position
-stays where the cube starts; the reference wrench is zero (a quasi-static rotation at this speed needs
-~1e-4 N m; the palm carries the weight and is not part of the measured finger wrench).
+stays where the cube starts; the reference wrench is the cube's weight carried (``-m g``, no torque: a
+quasi-static rotation at this speed needs ~1e-4 N m). The measured wrench is the whole hand's push, palm
+included, so it matches the reference however hard the fingers squeeze or push against the palm's
+friction (it is the wrench planner's "external wrench besides gravity" too). Measured fingers-only, the
+same term made the policy leave the cube still (0 %, docs/results.md).
 
 Reward (paper Eq. 1-3): ``λ_pose exp(-‖(pos_scale Δx, θ)‖) + λ_wrench exp(-‖Δf / force_scale, Δτ /
 torque_scale‖) - λ_act ‖w ⊙ a‖ + λ_f Σ_i exp(-‖x_fi - x_o‖ / fingertip_scale)``.
@@ -43,8 +46,11 @@ from ...rewards import (RewardCoefficients, action_penalty, distal_weighted_join
 
 __all__ = ["ReposeCubeConfig", "ReposeCubeEnv", "REST"]
 
-# joint order j0-j15 (index, middle, ring, thumb); fingers curled up around the cube without touching it
-REST = (0.0, 0.3, 1.3, 1.2) * 3 + (0.263, 0.3, 0.2, 0.3)
+# joint order j0-j15 (index, middle, ring, thumb): the fingertips 8 mm off the cube's -x face at mid-height,
+# the thumb tip 2 cm above its top face (MuJoCo forward kinematics; no geom touches the resting cube). It is
+# both the start pose and the zero action (ActionMap's center): mid-range targets hold the fingertips 6-11 cm
+# from the cube, out of contact, where the simulator's gradient cannot tell them how to turn it
+REST = (0.0, 0.407, 1.44, 1.533) * 3 + (0.49, 1.16, 0.791, 1.328)
 OPEN = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)
 CUBE = (0.0, 0.0, 0.1325, 1.0, 0.0, 0.0, 0.0)  # resting on the palm (the MJCF's start)
 
@@ -64,6 +70,9 @@ class ReposeCubeConfig(TaskConfig):
     force_scale: float = 1.0  # N: r_wrench force scale
     torque_scale: float = 0.05  # N m: r_wrench torque scale
     fingertip_scale: float = 0.05  # m
+    precision_weight: float = 1.0  # weight of the sharp orientation term 0.1 / (θ + 0.1) (1 at zero error)
+    position_penalty: float = 10.0  # 1/m: linear penalty on the cube's distance from the reference position
+    drop_penalty: float = 20.0  # reward lost on the step the cube falls (the episode then terminates)
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
 
@@ -74,8 +83,10 @@ class ReposeCubeConfig(TaskConfig):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
                 raise ValueError(f"task.{name} must be a number > 0, got {value!r}")
-        if not self.joint_noise >= 0:
-            raise ValueError(f"task.joint_noise must be >= 0, got {self.joint_noise!r}")
+        for name in ("joint_noise", "precision_weight", "position_penalty", "drop_penalty"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                raise ValueError(f"task.{name} must be a number >= 0, got {value!r}")
         if self.ramp_steps < 1:
             raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
         return self
@@ -95,7 +106,7 @@ class ReposeCubeEnv(DexEnv):
     asset = "allegro_cube.xml"
     config_class = ReposeCubeConfig
     goal_dim = 7
-    reward_terms = ("pose", "wrench", "action", "fingertip")
+    reward_terms = ("pose", "wrench", "action", "fingertip", "precision", "position", "drop")
     contact_params = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
     bench = BenchPoses(
         open_q=(*OPEN, *CUBE),
@@ -105,6 +116,7 @@ class ReposeCubeEnv(DexEnv):
         free_q=(*OPEN, *CUBE),
         squeeze_action=(0.0, 0.2, 0.2, 0.2) * 3 + (0.0, 0.0, 0.0, 0.0),
     )
+    action_center = REST
     plan_problem = PlanProblem(start=CUBE, goal=(0.0, 0.0, 0.1325, 0.8776, 0.4794, 0.0, 0.0), steps=60)
 
     def __init__(self, config: ReposeCubeConfig | None = None, **kwargs):
@@ -116,6 +128,7 @@ class ReposeCubeEnv(DexEnv):
 
         self._rest, self._lower, self._upper = t(REST), t(scene.dof_lower), t(scene.dof_upper)
         self._cube = t(scene.object_q0)
+        self._hold = torch.cat([-scene.object_mass * t(scene.gravity), t((0.0, 0.0, 0.0))])  # [6]: N, N m
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
                                                 device=self.device)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if self.config.action == "vi" else weights
@@ -144,7 +157,7 @@ class ReposeCubeEnv(DexEnv):
         quat = slerp(start.unsqueeze(1).expand(*frac.shape[:2], 4), goal[:, None, 3:].expand(*frac.shape[:2], 4), frac)
         pose = torch.cat([goal[:, None, :3].expand(*frac.shape[:2], 3), quat], -1)
         zeros = torch.zeros(*frac.shape[:2], 0, dtype=self.dtype, device=self.device)
-        return TensorDict({"pose": pose, "joint_q": zeros, "wrench": torch.zeros_like(pose[..., :6]),
+        return TensorDict({"pose": pose, "joint_q": zeros, "wrench": self._hold.expand(*frac.shape[:2], 6),
                            "joint_torque": zeros}, batch_size=steps.shape)
 
     def achieved_goal(self, obs: dict) -> torch.Tensor:
@@ -154,19 +167,27 @@ class ReposeCubeEnv(DexEnv):
         c = self.config
         ref = self.reference(task, task[("task", "step")])[:, 0]
         pose = obs[("object", "pose")]
+        angle = quat_angle(pose[:, 3:], ref["pose"][:, 3:])
         terms = {
             "pose": pose_reward(pose, ref["pose"], pos_scale=c.pos_scale),
             "wrench": wrench_reward(obs[("object", "wrench")], ref["wrench"], c.force_scale, c.torque_scale),
             "action": action_penalty(action.to(self.dtype), self._act_weights),
             "fingertip": fingertip_reward(obs[("fingertips", "pos")], pose[:, :3], c.fingertip_scale),
+            "precision": 0.1 / (angle + 0.1),
+            "position": -torch.linalg.vector_norm(pose[:, :3] - ref["pose"][:, :3], dim=-1, keepdim=True),
+            "drop": -self.task_terminated(obs).to(pose.dtype),
         }
         k = c.reward
         total = (k.lambda_pose * terms["pose"] + k.lambda_wrench * terms["wrench"] + k.lambda_act * terms["action"]
-                 + k.lambda_f * terms["fingertip"])
+                 + k.lambda_f * terms["fingertip"] + c.precision_weight * terms["precision"]
+                 + c.position_penalty * terms["position"] + c.drop_penalty * terms["drop"])
         return total, terms
 
+    def goal_error(self, achieved: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        return quat_angle(achieved[..., 3:], goal[..., 3:]).squeeze(-1)
+
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
-        return quat_angle(obs[("object", "pose")][:, 3:], goal[:, 3:]) <= self.config.success_threshold
+        return self.goal_error(obs[("object", "pose")], goal).unsqueeze(-1) <= self.config.success_threshold
 
     def task_terminated(self, obs: dict) -> torch.Tensor:
         away = obs[("object", "pose")][:, :3] - obs[("task", "goal")][:, :3]

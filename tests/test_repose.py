@@ -1,0 +1,51 @@
+"""repose_cube: a dropped cube ends its own episode (and pays the drop term); the rotation error is the
+success metric and the evaluation's final error."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from dexmots_rl.envs import make_env
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make_env("repose_cube", num_envs=3, seed=0, differentiable=False, max_episode_steps=5)
+
+
+def test_a_dropped_cube_terminates_its_world_and_only_its_world(env):
+    td = env.reset()
+    q = td["sim", "joint_q"].clone()
+    q[1, 16] -= 0.3  # world 1: the cube 0.3 m beside the hand, past task.fall_distance (0.24 m)
+    td["sim", "joint_q"] = q
+    td["action"] = torch.zeros(3, env.action_spec.shape[-1])
+    out = env.step(td)["next"]
+    assert out["terminated"].squeeze(-1).tolist() == [False, True, False]
+    assert out["reward_terms", "drop"].squeeze(-1).tolist() == [0.0, -1.0, 0.0]
+    assert out["reward"][1] < out["reward"][0] - 0.5 * env.base_env.config.drop_penalty
+    assert not out["info", "sim_failures"].any()
+
+
+def test_rotation_error_is_the_goal_error(env):
+    base = env.base_env
+    start = torch.tensor([[0.0, 0.0, 0.13, 1.0, 0.0, 0.0, 0.0]])
+    turned = start.clone()
+    turned[0, 3:5] = torch.tensor([math.cos(0.15), math.sin(0.15)])  # 0.3 rad about x
+    assert base.goal_error(start, turned).item() == pytest.approx(0.3, abs=1e-6)
+    assert base.goal_error(start, start).item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_the_hand_wrench_carries_the_resting_cube_and_matches_the_reference(env):
+    td = env.reset()
+    for _ in range(20):  # settle on the palm under the zero (rest-pose) action
+        td["action"] = torch.zeros(3, env.action_spec.shape[-1])
+        td = env.step(td)["next"]
+    base = env.base_env
+    weight = base.sim.scene.object_mass * 9.81
+    wrench = td["object", "wrench"]
+    torch.testing.assert_close(wrench[:, 2], torch.full((3,), weight, dtype=wrench.dtype), rtol=0.02, atol=0)
+    assert wrench[:, :2].abs().max() < 0.02 * weight and wrench[:, 3:].abs().max() < 1e-3
+    assert (td["reward_terms", "wrench"] > 0.95).all()  # the palm's support is what the reference asks
