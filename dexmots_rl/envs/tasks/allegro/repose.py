@@ -46,11 +46,12 @@ from ...rewards import (RewardCoefficients, action_penalty, distal_weighted_join
 
 __all__ = ["ReposeCubeConfig", "ReposeCubeEnv", "REST"]
 
-# joint order j0-j15 (index, middle, ring, thumb): the fingertips 8 mm off the cube's -x face at mid-height,
-# the thumb tip 2 cm above its top face (MuJoCo forward kinematics; no geom touches the resting cube). It is
-# both the start pose and the zero action (ActionMap's center): mid-range targets hold the fingertips 6-11 cm
-# from the cube, out of contact, where the simulator's gradient cannot tell them how to turn it
-REST = (0.0, 0.407, 1.44, 1.533) * 3 + (0.49, 1.16, 0.791, 1.328)
+# joint order j0-j15 (index, middle, ring, thumb): the three fingers curled over the cube, tips 8 mm above
+# its top face near the -x edge, the thumb tip 2 cm above it (MuJoCo forward kinematics). It is both the
+# start pose and the zero action (ActionMap's center): mid-range targets hold the fingertips 6-11 cm from
+# the cube, where the simulator's gradient cannot tell them how to turn it, and tips on the top face can
+# roll the cube about x by sliding sideways (j0), which tips on its -x face did not learn (docs/results.md)
+REST = (0.0, 1.152, 1.284, 0.252) * 3 + (0.49, 1.16, 0.791, 1.328)
 OPEN = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)
 CUBE = (0.0, 0.0, 0.1325, 1.0, 0.0, 0.0, 0.0)  # resting on the palm (the MJCF's start)
 
