@@ -13,7 +13,9 @@ from dexmots_rl.envs import make_env
 
 @pytest.fixture(scope="module")
 def env():
-    return make_env("repose_cube", num_envs=3, seed=0, differentiable=False, max_episode_steps=5)
+    # no start noise: ±0.05 rad (the default) puts a fingertip 5 mm into the cube in ~6 % of starts, which
+    # blow up in the first step and are reset (counted in sim_failures); this module tests the drop
+    return make_env("repose_cube", num_envs=3, seed=0, differentiable=False, max_episode_steps=5, joint_noise=0.0)
 
 
 def test_a_dropped_cube_terminates_its_world_and_only_its_world(env):
