@@ -43,6 +43,7 @@ from tensordict.nn import TensorDictModuleBase
 from tqdm.auto import tqdm
 
 from ..envs import make_env
+from ..envs.config import check_number
 from .common import RunWriter
 from .evaluation import evaluate_policy
 
@@ -80,11 +81,8 @@ def check_config(a) -> None:
             raise ValueError(f"algo.{name} must be one of {', '.join(choices)}, got {a[name]!r}")
     if a["knots"] > a["horizon"]:
         raise ValueError(f"algo.knots must be <= algo.horizon ({a['horizon']}), got {a['knots']}")
-    for name, low, strict in (("noise", 0, False), ("refine_lr", 0, True)):
-        value = a[name]
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not number or not (value > low if strict else value >= low):
-            raise ValueError(f"algo.{name} must be a number {'>' if strict else '>='} {low}, got {value!r}")
+    check_number("algo.noise", a["noise"], strict=False)
+    check_number("algo.refine_lr", a["refine_lr"])
 
 
 def spline_weights(times: torch.Tensor, horizon: int, knots: int, interpolation: str) -> torch.Tensor:

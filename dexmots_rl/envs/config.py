@@ -25,7 +25,15 @@ from .actions import ACTION_TYPES
 from .rewards import RewardCoefficients
 from .transforms import GOAL_MODES
 
-__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_range", "config_from_dict", "override_config"]
+__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict", "override_config"]
+
+
+def check_number(name: str, value, low: float = 0.0, strict: bool = True) -> None:
+    """A ``ValueError`` naming ``name`` unless ``value`` is a real number (not a bool) above ``low``
+    (``strict``) or at least ``low``."""
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or not (value > low if strict else value >= low):
+        raise ValueError(f"{name} must be a number {'>' if strict else '>='} {low:g}, got {value!r}")
 
 
 def check_range(name: str, value, low_bound: float = 0.0) -> tuple[float, float]:

@@ -38,7 +38,7 @@ from tensordict import TensorDict
 from ....quaternions import quat_angle, quat_multiply, slerp
 from ....sim import ContactParams
 from ...base import DexEnv
-from ...config import BenchPoses, PlanProblem, TaskConfig
+from ...config import BenchPoses, PlanProblem, TaskConfig, check_number
 from ...references import lookup
 from ...registry import register_task
 from ...rewards import (RewardCoefficients, action_penalty, distal_weighted_joint_weights, fingertip_reward,
@@ -81,13 +81,9 @@ class ReposeCubeConfig(TaskConfig):
         super().validate()
         for name in ("goal_angle", "success_threshold", "fall_distance", "pos_scale", "force_scale", "torque_scale",
                      "fingertip_scale"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"task.{name} must be a number > 0, got {value!r}")
+            check_number(f"task.{name}", getattr(self, name))
         for name in ("joint_noise", "precision_weight", "position_penalty", "drop_penalty"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
-                raise ValueError(f"task.{name} must be a number >= 0, got {value!r}")
+            check_number(f"task.{name}", getattr(self, name), strict=False)
         if self.ramp_steps < 1:
             raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
         return self
