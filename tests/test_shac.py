@@ -357,3 +357,41 @@ def test_shac_training_raises_toy_env_return():
 def test_docstring_example_runs():
     result = doctest.testmod(shac_module, optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_fit_critic_matches_the_minibatch_loop_over_critic_loss():
+    torch.manual_seed(0)
+    env = PointMassEnv(num_envs=6, max_episode_steps=5)
+    loss = make_loss()
+    with torch.no_grad():
+        rollout = differentiable_rollout(loss, env, 7)
+        rollout["next", "observation"][2, 3] = float("nan")  # a blown-up world: value 0, no gradient
+        rollout["observation"][4, 1] = float("inf")
+    data = loss.critic_targets(rollout).reshape(-1)
+    start = {k: v.clone() for k, v in loss.critic_network_params.items(True, True)}
+
+    def loop():
+        opt, losses = torch.optim.Adam(loss.critic_network.parameters(), lr=1e-2), []
+        for _ in range(3):
+            for batch in data[torch.randperm(data.numel())].split(data.numel() // 4):
+                opt.zero_grad()
+                value_loss = loss.critic_loss(batch)
+                value_loss.backward()
+                opt.step()
+                losses.append(value_loss.detach())
+        return torch.stack(losses), {k: v.clone() for k, v in loss.critic_network_params.items(True, True)}
+
+    torch.manual_seed(1)
+    expected_losses, expected = loop()
+    loss.critic_network_params.update_(start)
+    torch.manual_seed(1)
+    calls = []
+    opt = torch.optim.Adam(loss.critic_network.parameters(), lr=1e-2)
+    losses = loss.fit_critic(data, opt, 3, 4, on_gradients=lambda: calls.append(1))
+    assert len(calls) == len(losses) == len(expected_losses) == 3 * 4 + 3  # 42 = 4 x 10 + a remainder of 2
+    torch.testing.assert_close(losses, expected_losses)
+    for key, value in loss.critic_network_params.items(True, True):
+        torch.testing.assert_close(value, expected[key])
+    assert any((value != start[key]).any() for key, value in expected.items())  # the critic did move
+    with pytest.raises(ValueError, match="flat batch"):
+        loss.fit_critic(loss.critic_targets(rollout), opt, 1, 1)

@@ -64,8 +64,9 @@ def build(cfg: DictConfig, rank: int = 0):
         warnings.simplefilter("ignore", UserWarning)
         updater = SoftUpdate(loss, tau=1.0 - cfg.algo.target_alpha)
     betas = tuple(cfg.algo.betas)
-    actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.algo.actor_lr, betas=betas)
-    critic_opt = torch.optim.Adam(critic.parameters(), lr=cfg.algo.critic_lr, betas=betas)
+    # fused: one kernel per step instead of ~10 ops per parameter (the critic takes 64 steps per iteration)
+    actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.algo.actor_lr, betas=betas, fused=True)
+    critic_opt = torch.optim.Adam(critic.parameters(), lr=cfg.algo.critic_lr, betas=betas, fused=True)
     ahac = None
     if cfg.algo.name == "ahac":
         ahac = AdaptiveHorizon(cfg.algo.horizon_min, cfg.algo.horizon_max, cfg.algo.contact_threshold,
@@ -196,16 +197,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         # 3. observation statistics, outside the graph; 4. critic on the detached rollout
         dist.update_norm(norm, rollout.get("observation"))
         data = loss.critic_targets(rollout).reshape(-1)
-        critic_losses = []
-        batch_size = max(1, data.numel() // cfg.algo.critic_minibatches)
-        for _ in range(cfg.algo.critic_iterations):
-            for batch in data[torch.randperm(data.numel())].split(batch_size):
-                critic_opt.zero_grad()
-                value_loss = loss.critic_loss(batch)
-                value_loss.backward()
-                dist.average_gradients(critic.parameters())
-                critic_opt.step()
-                critic_losses.append(value_loss.item())
+        critic_losses = loss.fit_critic(data, critic_opt, cfg.algo.critic_iterations, cfg.algo.critic_minibatches,
+                                        on_gradients=lambda: dist.average_gradients(critic.parameters())).tolist()
         updater.step()
         td = next_rollout_start(env, rollout)
 

@@ -311,6 +311,51 @@ class SHACLoss(LossModule):
         loss = distance_loss(target.detach().reshape(value.shape), value, loss_function=self.loss_critic_type)
         return self._reduce_loss(loss, tensordict)
 
+    def fit_critic(self, data: TensorDictBase, optimizer: torch.optim.Optimizer, iterations: int,
+                   minibatches: int, on_gradients=None) -> torch.Tensor:
+        """Regress the critic onto ``data``'s targets: ``iterations`` passes, each over ``data`` shuffled by
+        ``torch.randperm`` and split into ``minibatches`` (plus a remainder), one ``optimizer`` step per
+        minibatch; ``on_gradients()`` runs between backward and step (e.g. averaging across ranks).
+        Returns the minibatch losses [steps].
+
+        ``data``: flat [N] output of :meth:`critic_targets`. The result is the same as looping
+        :meth:`critic_loss` over ``data[torch.randperm(N)].split(N // minibatches)`` (tested), but the
+        critic's inputs are extracted and made finite once, not per minibatch: on the claw's 64 x 48-step
+        rollouts the loop was the largest part of an iteration (200 of 540 ms) and this takes ~80 ms."""
+        if data.ndim != 1:
+            raise ValueError(f"fit_critic needs a flat batch (data.reshape(-1)), got batch size {data.batch_size}")
+        keys = list(self.critic_network.in_keys)
+        inputs = [data.get(k).detach() for k in keys]
+        bad = torch.zeros(data.numel(), dtype=torch.bool, device=data.device)
+        for i, x in enumerate(inputs):
+            if x.is_floating_point():
+                ok = torch.isfinite(x)
+                bad |= ~ok.reshape(data.numel(), -1).all(-1)
+                inputs[i] = torch.where(ok, x, torch.zeros_like(x))
+        target = data.get(self.tensor_keys.value_target).detach()
+        out_index = list(self.critic_network.out_keys).index(self.tensor_keys.value)
+        module, n = self.critic_network.module, data.numel()
+        batch_size = max(1, n // minibatches)
+        losses = []
+        with self.critic_network_params.to_module(self.critic_network):
+            for _ in range(iterations):
+                for idx in torch.randperm(n, device=data.device).split(batch_size):
+                    optimizer.zero_grad()
+                    value = module(*(x[idx] for x in inputs))
+                    if isinstance(value, tuple):
+                        value = value[out_index]
+                    value = _finite(value)
+                    value = torch.where(bad[idx].reshape(-1, *([1] * (value.dim() - 1))), torch.zeros_like(value),
+                                        value)
+                    loss = distance_loss(target[idx].reshape(value.shape), value, loss_function=self.loss_critic_type)
+                    loss = self._reduce_loss(loss, None)
+                    loss.backward()
+                    if on_gradients is not None:
+                        on_gradients()
+                    optimizer.step()
+                    losses.append(loss.detach())
+        return torch.stack(losses) if losses else torch.zeros(0)
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """``"loss_actor"`` on the differentiable rollout and ``"loss_critic"`` on its detached copy.
 
