@@ -81,7 +81,7 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
 
     def fake_train_job(cfg):
         launched.append((cfg.task.name, cfg.algo.name, cfg.seed, cfg.task.action, cfg.torch_threads))
-        assert cfg.overwrite and cfg.budget.wall_clock_s == 100  # the preset's budget, for every run
+        assert cfg.overwrite and cfg.budget.wall_clock_s == 150  # the preset's budget, for every run
         _fake_finished(Path(cfg.run_dir), cfg.task.name, cfg.algo.name, 0.5)
         return {}
 
@@ -134,7 +134,7 @@ def test_the_figures_and_table_come_from_the_run_directories(tmp_path, monkeypat
     for png in ("curves_screw_claw.png", "action_space_screw_claw.png"):
         assert (sweep / png).stat().st_size > 10_000 and (sweep / png).read_bytes()[:4] == b"\x89PNG"
     assert "| Screw-top (Claw) | 55.0 ± 7.1 | 55.0 ± 7.1 |" in result["table"]
-    assert "100 s of training wall-clock" in result["table"] and "wall_clock_s (4)" in result["table"]
+    assert "150 s of training wall-clock" in result["table"] and "wall_clock_s (4)" in result["table"]
     assert (sweep / "table.md").read_text() == result["table"]
     assert len(read_csv(sweep / "runs.csv")) == 8
 

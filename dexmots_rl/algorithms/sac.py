@@ -62,7 +62,7 @@ def build(cfg: DictConfig):
         {"params": loss.actor_network_params.flatten_keys().values(), "lr": a.actor_lr},
         {"params": loss.qvalue_network_params.flatten_keys().values(), "lr": a.critic_lr},
         {"params": [loss.log_alpha], "lr": a.alpha_lr},
-    ])
+    ], fused=True)  # one kernel per step: SAC is update-bound on CPU
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(int(a.buffer_size), device=cfg.device),
                                     batch_size=a.batch_size)
     return env, vecnorm, actor, loss, updater, optimizer, buffer
