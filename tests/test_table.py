@@ -181,3 +181,23 @@ def test_learning_rate_schedules_end_with_the_budget():
     assert RunBudget(wall_clock_s=60.0).progress(counters, schedule=0.2) == 0.5
     assert RunBudget(wall_clock_s=60.0, env_steps=10000).progress(counters, schedule=0.2) == 0.9
     assert RunBudget(env_steps=5000).progress(counters, schedule=0.2) == 1.0  # past the budget: annealed
+
+
+def test_a_planner_run_shows_no_training_and_no_budget_warning(tmp_path, monkeypatch):
+    runs = tmp_path / "sweep" / "runs" / "screw_claw"
+    for seed in (0, 1):
+        _fake_finished(runs / "dexmots" / "vi" / f"seed{seed}", "screw_claw", "ahac", 0.9)
+        mpc = runs / "mpc" / "vi" / f"seed{seed}"  # as algo=mpc leaves it: one evaluation row, no training
+        mpc.mkdir(parents=True)
+        (mpc / "metrics.jsonl").write_text(json.dumps({"iteration": 0, "success_rate": 0.95, "env_steps": 10000,
+                                                       "wall_clock_s": 38.0}) + "\n")
+        (mpc / "metrics.json").write_text(json.dumps({
+            "task": "screw_claw", "algo": "mpc", "success_rate": 0.95, "episodes": 100, "env_steps": 10000,
+            "iterations": 0, "train_wall_clock_s": 0.0,
+            "budget": {} if seed == 0 else {"wall_clock_s": None, "env_steps": None, "stopped_by": "no_training"}}))
+    monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("everything is finished"))
+    result = table.run_table(_table_cfg(tmp_path, "methods=[dexmots,mpc]"))
+    assert "| Screw-top (Claw) | 20 s (2/2) | no training |" in result["table"]  # not "0 s (2/2)"
+    assert "different budgets" not in result["table"] and "no_training (2)" in result["table"]
+    rows = read_csv(tmp_path / "sweep" / "runs.csv")
+    assert [r["time_to_90_s"] for r in rows if r["method"] == "mpc"] == [None, None]

@@ -185,6 +185,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         loss_actor = loss.actor_loss(rollout)
         clipped_before = sim.clipped_adjoints
         loss_actor.backward()
+        clip_share = (sim.clipped_adjoints - clipped_before) / rollout.numel()  # world-steps capped (adjoint_clip)
         counters["clipped_adjoints"] += sim.clipped_adjoints - clipped_before
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
@@ -212,6 +213,9 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         if dist.sum(torch.tensor([float(over is not None)])) > 0:
             stopped_by = over or "wall_clock_s"
         row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
+        row["clip_share"] = clip_share  # rising shares went with the runs that failed (docs/devnotes.md)
+        if ahac is not None:
+            row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")

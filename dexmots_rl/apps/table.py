@@ -42,6 +42,8 @@ import sys
 import threading
 from pathlib import Path
 
+from ..algorithms.budget import NO_TRAINING
+
 __all__ = ["main", "run_table", "train_job"]
 
 log = logging.getLogger(__name__)
@@ -196,7 +198,8 @@ def _budget_text(budget: dict, rows: list[dict]) -> str:
             stops[r["stopped_by"] or "unknown"] = stops.get(r["stopped_by"] or "unknown", 0) + 1
     if stops:
         text += "; runs stopped by " + ", ".join(f"{k} ({n})" for k, n in sorted(stops.items()))
-    budgets = {(r["budget_wall_clock_s"], r["budget_env_steps"]) for r in rows if r["status"] == "finished"}
+    budgets = {(r["budget_wall_clock_s"], r["budget_env_steps"]) for r in rows
+               if r["status"] == "finished" and r["stopped_by"] != NO_TRAINING}  # a planner has no training budget
     if len(budgets) > 1:
         text += (f". **Warning: the finished runs had {len(budgets)} different budgets** (runs.csv: "
                  "budget_wall_clock_s, budget_env_steps); remove the odd ones' directories and rerun")

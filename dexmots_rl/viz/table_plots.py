@@ -64,12 +64,19 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[dict]]], labels:
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
     for ax, (x_key, x_label) in zip(axes, AXES):
         for method, seeds in curves.items():
+            if seeds and all(len(c) == 1 and not c[0]["wall_clock_s"] for c in seeds):
+                # a planner (algo=mpc) trains nothing: its evaluated success as a level, not a curve
+                level = 100 * statistics.fmean(c[0]["success"] for c in seeds)
+                n = len(seeds)
+                ax.axhline(level, linestyle="--", linewidth=1.2, color=f"C{list(curves).index(method)}",
+                           label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''}, no training)")
+                continue
             spread = _seed_spread(seeds, x_key)
             if spread is None:
                 continue
             grid, mean, low, high = spread
             n = len(seeds)
-            (line,) = ax.plot(grid, mean, label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
+            (line,) = ax.plot(grid, mean, color=f"C{list(curves).index(method)}", label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
             if n > 1:
                 ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_xlabel(x_label)

@@ -27,6 +27,8 @@ import statistics
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from ..algorithms.budget import NO_TRAINING
+
 __all__ = ["CSV_FIELDS", "learning_curve", "markdown_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
@@ -85,11 +87,13 @@ def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> d
                status=status, run_dir=str(run.run_dir))
     if metrics is not None:
         budget = metrics.get("budget") or {}
-        reached = time_to_success(learning_curve(run.run_dir, metrics), threshold)
+        # a planner (algo=mpc) trains nothing: no time to 90 %, and the sweep's training budget did not apply
+        trained = metrics.get("iterations") != 0 and budget.get("stopped_by") != NO_TRAINING
+        reached = time_to_success(learning_curve(run.run_dir, metrics), threshold) if trained else None
         row.update(success=round(metrics["success_rate"], 4), episodes=metrics.get("episodes"),
                    wall_clock_s=metrics.get("train_wall_clock_s"), env_steps=metrics.get("env_steps"),
-                   stopped_by=budget.get("stopped_by"), budget_wall_clock_s=budget.get("wall_clock_s"),
-                   budget_env_steps=budget.get("env_steps"))
+                   stopped_by=budget.get("stopped_by") if trained else NO_TRAINING,
+                   budget_wall_clock_s=budget.get("wall_clock_s"), budget_env_steps=budget.get("env_steps"))
         if reached is not None:
             row.update(time_to_90_s=reached["wall_clock_s"], env_steps_to_90=reached["env_steps"])
     return row
@@ -177,15 +181,22 @@ def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], metho
 def time_to_success_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]],
                           methods: Sequence[tuple[str, str]]) -> str:
     """Mean training wall-clock (s) to 90 % success over the finished runs that reached it, and how many of
-    the runs did (``84 s (2/3)``); ``–`` when none did."""
+    the runs did (``84 s (2/3)``); ``–`` when none did; ``no training`` for a planner's runs."""
     rows = list(rows)
     reached = _grouped(rows, "time_to_90_s")
     runs = {key: len(v) for key, v in _grouped(rows, "success").items()}
+    untrained = {}
+    for r in rows:
+        if r["status"] == "finished" and r["stopped_by"] == NO_TRAINING:
+            untrained[(r["task"], r["method"])] = untrained.get((r["task"], r["method"]), 0) + 1
     lines = _header(methods)
     for task, label in tasks:
         cells = []
         for method, _ in methods:
             times, n = reached.get((task, method)) or [], runs.get((task, method), 0)
+            if n and n == untrained.get((task, method), 0):
+                cells.append("no training")
+                continue
             cells.append(f"{statistics.fmean(times):.0f} s ({len(times)}/{n})" if times else
                          (f"{DASH} (0/{n})" if n else DASH))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
