@@ -201,3 +201,16 @@ def test_a_planner_run_shows_no_training_and_no_budget_warning(tmp_path, monkeyp
     assert "different budgets" not in result["table"] and "no_training (2)" in result["table"]
     rows = read_csv(tmp_path / "sweep" / "runs.csv")
     assert [r["time_to_90_s"] for r in rows if r["method"] == "mpc"] == [None, None]
+
+
+def test_learning_curves_draw_a_planner_as_a_level():
+    from dexmots_rl.viz.table_plots import plot_learning_curves
+
+    trained = [[{"env_steps": 100 * i, "wall_clock_s": 10.0 * i, "success": 0.2 * i} for i in range(1, 5)]] * 2
+    planner = [[{"env_steps": 10000, "wall_clock_s": 0.0, "success": s}] for s in (0.4, 0.6)]
+    fig = plot_learning_curves({"dexmots": trained, "mpc": planner}, {"dexmots": "Ours", "mpc": "MPC"}, "Claw")
+    for ax in fig.axes:
+        lines = {line.get_label(): line for line in ax.get_lines()}
+        level = lines["MPC (2 seeds, no training)"]
+        assert list(level.get_ydata()) == [50.0, 50.0] and level.get_linestyle() == "--"
+        assert len(lines["Ours (2 seeds)"].get_xdata()) > 1
