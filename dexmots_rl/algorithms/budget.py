@@ -24,11 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["NO_TRAINING", "RunBudget"]
-
-#: ``budget.stopped_by`` of a run that trains nothing (``algo=mpc`` plans inside its evaluation): no training
-#: budget applied to it, and ``dexmots-table`` reports "no training" rather than a time to 90 %
-NO_TRAINING = "no_training"
+__all__ = ["RunBudget"]
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ from tqdm.auto import tqdm
 
 from ..envs import make_env
 from ..envs.config import check_number
-from .budget import NO_TRAINING
+from ..viz.table_writer import NO_TRAINING
 from .common import RunWriter
 from .evaluation import evaluate_policy
 

@@ -42,7 +42,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ..algorithms.budget import NO_TRAINING
+from ..viz.table_writer import NO_TRAINING
 
 __all__ = ["main", "run_table", "train_job"]
 

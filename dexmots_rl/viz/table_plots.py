@@ -76,7 +76,8 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[dict]]], labels:
                 continue
             grid, mean, low, high = spread
             n = len(seeds)
-            (line,) = ax.plot(grid, mean, color=f"C{list(curves).index(method)}", label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
+            label = f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})"
+            (line,) = ax.plot(grid, mean, color=f"C{list(curves).index(method)}", label=label)
             if n > 1:
                 ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_xlabel(x_label)
