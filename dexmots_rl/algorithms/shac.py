@@ -185,8 +185,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         loss_actor = loss.actor_loss(rollout)
         clipped_before = sim.clipped_adjoints
         loss_actor.backward()
-        clip_share = (sim.clipped_adjoints - clipped_before) / rollout.numel()  # world-steps capped (adjoint_clip)
-        counters["clipped_adjoints"] += sim.clipped_adjoints - clipped_before
+        clipped = sim.clipped_adjoints - clipped_before  # world-steps whose adjoint was capped (adjoint_clip)
+        counters["clipped_adjoints"] += clipped
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
         if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
@@ -213,7 +213,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         if dist.sum(torch.tensor([float(over is not None)])) > 0:
             stopped_by = over or "wall_clock_s"
         row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
-        row["clip_share"] = clip_share  # rising shares went with the runs that failed (docs/devnotes.md)
+        row["clip_share"] = clipped / rollout.numel()  # rising shares went with the runs that failed (docs/devnotes.md)
         if ahac is not None:
             row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
         bar.update(1)

@@ -29,6 +29,20 @@ def _finite(x: torch.Tensor) -> torch.Tensor:
     return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+def _finite_rows(x: torch.Tensor, batch_shape) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x`` with its non-finite entries zeroed, and [*batch_shape] flags of the rows that had any."""
+    ok = torch.isfinite(x)
+    return torch.where(ok, x, torch.zeros_like(x)), ~ok.reshape(*batch_shape, -1).all(-1)
+
+
+def _zero_rows(value: torch.Tensor, bad: torch.Tensor | None) -> torch.Tensor:
+    """``value`` with the rows flagged in ``bad`` set to 0 (by selection: their gradient is 0, not NaN)."""
+    if bad is None:
+        return value
+    bad = bad.reshape(*bad.shape, *([1] * (value.dim() - bad.dim())))
+    return torch.where(bad, torch.zeros_like(value), value)
+
+
 def next_rollout_start(env, rollout: TensorDictBase) -> TensorDictBase:
     """The root TensorDict to start the next rollout from: the last step's ``"next"`` data, with the worlds
     that were done at that step reset, detached so that gradients stop at the rollout boundary (SHAC
@@ -232,16 +246,12 @@ class SHACLoss(LossModule):
         bad = None
         for key, x in inputs.items(True, True):
             if x.is_floating_point():
-                ok = torch.isfinite(x)
-                row_bad = ~ok.reshape(*td.batch_size, -1).all(-1)
+                x, row_bad = _finite_rows(x, td.batch_size)
                 bad = row_bad if bad is None else bad | row_bad
-                inputs.set(key, torch.where(ok, x, torch.zeros_like(x)))
+                inputs.set(key, x)
         with params.to_module(self.critic_network):
             value = _finite(self.critic_network(inputs).get(self.tensor_keys.value))
-        if bad is None:
-            return value
-        bad = bad.reshape(*bad.shape, *([1] * (value.dim() - bad.dim())))
-        return torch.where(bad, torch.zeros_like(value), value)
+        return _zero_rows(value, bad)
 
     def _next_entries(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         k = self.tensor_keys
@@ -329,9 +339,8 @@ class SHACLoss(LossModule):
         bad = torch.zeros(data.numel(), dtype=torch.bool, device=data.device)
         for i, x in enumerate(inputs):
             if x.is_floating_point():
-                ok = torch.isfinite(x)
-                bad |= ~ok.reshape(data.numel(), -1).all(-1)
-                inputs[i] = torch.where(ok, x, torch.zeros_like(x))
+                inputs[i], row_bad = _finite_rows(x, data.batch_size)
+                bad |= row_bad
         target = data.get(self.tensor_keys.value_target).detach()
         out_index = list(self.critic_network.out_keys).index(self.tensor_keys.value)
         module, n = self.critic_network.module, data.numel()
@@ -344,9 +353,7 @@ class SHACLoss(LossModule):
                     value = module(*(x[idx] for x in inputs))
                     if isinstance(value, tuple):
                         value = value[out_index]
-                    value = _finite(value)
-                    value = torch.where(bad[idx].reshape(-1, *([1] * (value.dim() - 1))), torch.zeros_like(value),
-                                        value)
+                    value = _zero_rows(_finite(value), bad[idx])
                     loss = distance_loss(target[idx].reshape(value.shape), value, loss_function=self.loss_critic_type)
                     loss = self._reduce_loss(loss, None)
                     loss.backward()
