@@ -8,9 +8,11 @@
 One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
 policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
 huge; worlds whose gradient through the simulator dwarfs the median world's are capped first,
-``algo.adjoint_clip``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
+``algo.adjoint_clip``; the optional smoothness penalty's gradient is added after the clip,
+``algo.smooth_temporal`` / ``smooth_spatial``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
 on the detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the
-episodes continue from the rollout's last state (graph cut). The run directory gets the resolved
+episodes continue from the rollout's last state (graph cut) -> the best policy so far is kept and
+restored after a collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the resolved
 config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at the end,
 ``metrics.json`` with the final evaluation (:mod:`.evaluate`).
 """
@@ -34,7 +36,8 @@ from tqdm.auto import tqdm
 
 from ..atomic import atomic_write_json, dumps_json
 from ..envs import make_env
-from ..objectives import AdaptiveHorizon, SHACLoss, next_rollout_start
+from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
+from .best_policy import BestPolicy
 from .budget import RunBudget
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .distributed import Distributed
@@ -141,6 +144,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     if ahac is not None:
         modules["ahac"] = ahac
     optimizers = {"actor": actor_opt, "critic": critic_opt}
+    smoothness = _smoothness(cfg, actor)
+    best = BestPolicy(modules, optimizers, cfg.algo.best_window, cfg.algo.rollback_drop) if cfg.algo.keep_best else None
     counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0}
     sim = env.base_env.sim
     td = env.reset()
@@ -150,6 +155,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         for name, opt in optimizers.items():
             opt.load_state_dict(start["optimizers"][name])
         counters.update(start["counters"])
+        if best is not None and start.get("best") is not None:
+            best.load_state_dict(start["best"])
         td = TensorDict.from_dict(start["env_state"], batch_size=td.batch_size)
         torch.set_rng_state(start["rng"]["torch"])
         env.base_env.generator.set_state(start["rng"]["env"])
@@ -189,10 +196,16 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         counters["clipped_adjoints"] += clipped
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
+        smooth = None
         if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
             counters["skipped_updates"] += 1
             actor_opt.zero_grad()
         else:
+            if smoothness is not None:  # after the clip, so an exploding SHAC gradient cannot drown it
+                smooth = smoothness(rollout)
+                (cfg.algo.smooth_temporal * smooth["loss_smooth_temporal"]
+                 + cfg.algo.smooth_spatial * smooth["loss_smooth_spatial"]).backward()
+                dist.average_gradients(actor.parameters())
             actor_opt.step()
 
         # 3. observation statistics, outside the graph; 4. critic on the detached rollout
@@ -216,6 +229,12 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         row["clip_share"] = clipped / rollout.numel()  # rising shares went with the runs that failed (docs/devnotes.md)
         if ahac is not None:
             row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
+        if smooth is not None:
+            row["smooth_temporal"] = float(smooth["loss_smooth_temporal"].detach())
+            row["smooth_spatial"] = float(smooth["loss_smooth_spatial"].detach())
+        if best is not None:  # every rank sees the same (summed) success, so all roll back together
+            best.observe(row["episode_success"])
+            row["rollbacks"] = best.rollbacks
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
@@ -223,7 +242,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
             _log_row(logger, run_dir, row)
             last = counters["iteration"] == stop_at or stopped_by is not None
             if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
-                _save(run_dir, cfg, counters, modules, optimizers, td, env)
+                _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
                 t_eval = time.perf_counter()
                 ev = evaluate_policy(actor, cfg.task, periodic_episodes(cfg.eval), cfg.eval.seed, cfg.device,
@@ -236,14 +255,40 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     if interrupted:
         result = {"interrupted": stop.signal or "signal", "iteration": counters["iteration"], "run_dir": str(run_dir)}
     if dist.is_main and (counters["iteration"] == iterations or stopped_by is not None) and not interrupted:
+        final_policy = _final_policy(best)
+        if final_policy["source"] == "best":  # the checkpoint holds the policy that is evaluated
+            _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
         ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "skipped_updates": counters["skipped_updates"], "budget": budget.record(stopped_by),
+                  "skipped_updates": counters["skipped_updates"], "final_policy": final_policy,
+                  "budget": budget.record(stopped_by),
                   "run_dir": str(run_dir)}
         atomic_write_json(run_dir / "metrics.json", result)
     dist.close()
     return result
+
+
+def _smoothness(cfg, actor) -> PolicySmoothnessLoss | None:
+    """The CAPS penalty on the actor's mean action when either weight is positive."""
+    if not (cfg.algo.smooth_temporal > 0 or cfg.algo.smooth_spatial > 0):
+        return None
+    sigma = cfg.algo.smooth_sigma if cfg.algo.smooth_spatial > 0 else 0.0
+    return PolicySmoothnessLoss(actor[0], spatial_sigma=sigma)  # actor[0] writes loc (pre-tanh mean)
+
+
+def _final_policy(best: BestPolicy | None) -> dict:
+    """Which policy the final evaluation gets. With rollbacks on, the last one (a collapse was already
+    rolled back while training); with ``rollback_drop: null``, the best one when its training success
+    beats the last window's."""
+    if best is None:
+        return {"source": "last"}
+    record = {"best_train_success": best.best_score if best.best_iteration is not None else None,
+              "best_iteration": best.best_iteration, "rollbacks": best.rollbacks, "source": "last"}
+    if best.rollback_drop is None and best.best_iteration is not None and not best.score >= best.best_score:
+        best.restore()
+        record["source"] = "best"
+    return record
 
 
 def _rec(cfg, run_dir: Path) -> dict:
@@ -293,7 +338,7 @@ def _log_row(logger, run_dir: Path, row: dict) -> None:
                 logger.log_scalar(key, value, step=row["iteration"])
 
 
-def _save(run_dir, cfg, counters, modules, optimizers, td, env) -> None:
+def _save(run_dir, cfg, counters, modules, optimizers, td, env, best=None) -> None:
     save_checkpoint(run_dir / "checkpoints" / "last.pt", {
         "task": cfg.task.name,
         "algo": cfg.algo.name,
@@ -304,4 +349,5 @@ def _save(run_dir, cfg, counters, modules, optimizers, td, env) -> None:
         "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
         "env_state": td.detach().to_dict(),
         "rng": {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
+        "best": best.state_dict() if best is not None else None,
     })

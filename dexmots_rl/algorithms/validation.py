@@ -51,6 +51,12 @@ _ALGO_RULES = {
     "contact_threshold": (lambda v: _number(v) and v > 0, "a positive finite number"),
     "dual_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
     "truncate": (lambda v: isinstance(v, bool), "true or false"),
+    "keep_best": (lambda v: isinstance(v, bool), "true or false"),
+    "best_window": (lambda v: _integer(v) and v > 0, "a positive integer"),
+    "rollback_drop": (lambda v: v is None or (_number(v) and 0 < v <= 1), "null or a number in (0, 1]"),
+    "smooth_temporal": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
+    "smooth_spatial": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
+    "smooth_sigma": (lambda v: _number(v) and v > 0, "a positive finite number"),
 }
 
 _RUN_RULES = {
