@@ -66,3 +66,25 @@ def test_training_with_the_penalty_logs_both_terms(tmp_path):
     assert all(r["smooth_temporal"] >= 0 and r["smooth_spatial"] > 0 for r in rows)
     with pytest.raises(ValueError, match=r"algo\.smooth_temporal"):
         validate_run_config(_cfg(tmp_path / "bad", "algo.smooth_temporal=-0.1"))
+
+
+def test_adaptive_scale_follows_the_clipped_adjoint_share():
+    from types import SimpleNamespace
+
+    from dexmots_rl.algorithms.shac import _smooth_scale
+
+    fixed = SimpleNamespace(smooth_clip_target=None, smooth_dual_lr=10.0)
+    assert _smooth_scale(fixed, 0.0, 0.5) == 1.0
+    algo = SimpleNamespace(smooth_clip_target=0.005, smooth_dual_lr=10.0)
+    assert _smooth_scale(algo, 0.0, 0.001) == 0.0  # a healthy run: the penalty stays off
+    up = _smooth_scale(algo, 0.0, 0.05)
+    assert up == pytest.approx(0.45)
+    assert _smooth_scale(algo, up, 0.5) == 1.0  # clamped
+    assert _smooth_scale(algo, up, 0.0) == pytest.approx(0.4)
+
+
+def test_training_with_an_adaptive_penalty_logs_its_scale(tmp_path):
+    train(_cfg(tmp_path / "run", "algo.iterations=2", "algo.smooth_temporal=0.1", "algo.smooth_clip_target=0.0"))
+    rows = _rows(tmp_path / "run")
+    assert all(0.0 <= r["smooth_scale"] <= 1.0 for r in rows)
+    assert all(("smooth_temporal" in r) == (r["smooth_scale"] > 0) for r in rows)

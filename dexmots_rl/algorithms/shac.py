@@ -9,7 +9,8 @@ One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` wor
 policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
 huge; worlds whose gradient through the simulator dwarfs the median world's are capped first,
 ``algo.adjoint_clip``; the optional smoothness penalty's gradient is added after the clip,
-``algo.smooth_temporal`` / ``smooth_spatial``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
+``algo.smooth_temporal`` / ``smooth_spatial``, its weight raised only while the share of clipped
+adjoints is above ``algo.smooth_clip_target``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
 on the detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the
 episodes continue from the rollout's last state (graph cut) -> the best policy so far is kept and
 restored after a collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the resolved
@@ -146,7 +147,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     optimizers = {"actor": actor_opt, "critic": critic_opt}
     smoothness = _smoothness(cfg, actor)
     best = BestPolicy(modules, optimizers, cfg.algo.best_window, cfg.algo.rollback_drop) if cfg.algo.keep_best else None
-    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0}
+    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0,
+                "smooth_scale": 1.0 if cfg.algo.smooth_clip_target is None else 0.0}
     sim = env.base_env.sim
     td = env.reset()
     if start is not None:
@@ -196,15 +198,17 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         counters["clipped_adjoints"] += clipped
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
+        share = float(dist.mean(torch.tensor(clipped / rollout.numel())))  # the same on every rank
+        counters["smooth_scale"] = _smooth_scale(cfg.algo, counters["smooth_scale"], share)
         smooth = None
         if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
             counters["skipped_updates"] += 1
             actor_opt.zero_grad()
         else:
-            if smoothness is not None:  # after the clip, so an exploding SHAC gradient cannot drown it
-                smooth = smoothness(rollout)
-                (cfg.algo.smooth_temporal * smooth["loss_smooth_temporal"]
-                 + cfg.algo.smooth_spatial * smooth["loss_smooth_spatial"]).backward()
+            if smoothness is not None and counters["smooth_scale"] > 0:  # after the clip, so an exploding
+                smooth = smoothness(rollout)                               # SHAC gradient cannot drown it
+                (counters["smooth_scale"] * (cfg.algo.smooth_temporal * smooth["loss_smooth_temporal"]
+                                             + cfg.algo.smooth_spatial * smooth["loss_smooth_spatial"])).backward()
                 dist.average_gradients(actor.parameters())
             actor_opt.step()
 
@@ -229,6 +233,8 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         row["clip_share"] = clipped / rollout.numel()  # rising shares went with the runs that failed (docs/devnotes.md)
         if ahac is not None:
             row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
+        if smoothness is not None:
+            row["smooth_scale"] = counters["smooth_scale"]
         if smooth is not None:
             row["smooth_temporal"] = float(smooth["loss_smooth_temporal"].detach())
             row["smooth_spatial"] = float(smooth["loss_smooth_spatial"].detach())
@@ -275,6 +281,16 @@ def _smoothness(cfg, actor) -> PolicySmoothnessLoss | None:
         return None
     sigma = cfg.algo.smooth_sigma if cfg.algo.smooth_spatial > 0 else 0.0
     return PolicySmoothnessLoss(actor[0], spatial_sigma=sigma)  # actor[0] writes loc (pre-tanh mean)
+
+
+def _smooth_scale(algo, scale: float, share: float) -> float:
+    """The smoothness weights' factor in [0, 1]: 1 without ``smooth_clip_target``; otherwise a dual variable
+    that rises while this iteration's clipped-adjoint share is above the target and falls below it. The
+    failing runs' share rose from ~0.1 % to 3-10 % as their policies became jumpy, while a fixed penalty
+    slowed the runs that learnt (docs/results.md, session 11), so the penalty acts only in that regime."""
+    if algo.smooth_clip_target is None:
+        return 1.0
+    return min(1.0, max(0.0, scale + algo.smooth_dual_lr * (share - algo.smooth_clip_target)))
 
 
 def _final_policy(best: BestPolicy | None) -> dict:

@@ -57,6 +57,8 @@ _ALGO_RULES = {
     "smooth_temporal": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
     "smooth_spatial": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
     "smooth_sigma": (lambda v: _number(v) and v > 0, "a positive finite number"),
+    "smooth_clip_target": (lambda v: v is None or (_number(v) and 0 <= v < 1), "null or a share in [0, 1)"),
+    "smooth_dual_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
 }
 
 _RUN_RULES = {
