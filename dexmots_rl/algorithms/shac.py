@@ -8,14 +8,14 @@
 One iteration: a differentiable rollout of ``horizon`` steps in ``num_envs`` worlds under the sampled
 policy -> actor loss (SHAC) -> one clipped Adam step (skipped and counted if the gradient norm is NaN or
 huge; worlds whose gradient through the simulator dwarfs the median world's are capped first,
-``algo.adjoint_clip``; the optional smoothness penalty's gradient is added after the clip,
-``algo.smooth_temporal`` / ``smooth_spatial``, its weight raised only while the share of clipped
-adjoints is above ``algo.smooth_clip_target``) -> observation statistics updated outside the graph -> TD(lambda) targets with the target critic
-on the detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the
-episodes continue from the rollout's last state (graph cut) -> the best policy so far is kept and
-restored after a collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the resolved
-config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at the end,
-``metrics.json`` with the final evaluation (:mod:`.evaluate`).
+``algo.adjoint_clip``; a policy-smoothness penalty's gradient is added after the clip, ``algo.smooth_*``,
+with its weight raised only while the share of capped adjoints is above ``algo.smooth_clip_target``) ->
+observation statistics updated outside the graph -> TD(lambda) targets with the target critic on the
+detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the episodes
+continue from the rollout's last state (graph cut) -> the best policy so far is kept, and restored after a
+collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the
+resolved config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at
+the end, ``metrics.json`` with the final evaluation (:mod:`.evaluate`).
 """
 
 from __future__ import annotations
