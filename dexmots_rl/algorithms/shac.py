@@ -198,7 +198,9 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         counters["clipped_adjoints"] += clipped
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
-        share = float(dist.mean(torch.tensor(clipped / rollout.numel())))  # the same on every rank
+        # share of world-steps whose adjoint was capped, averaged over ranks: rising shares went with the runs
+        # that failed (docs/devnotes.md), and the smoothness penalty's dual follows it
+        share = float(dist.mean(torch.tensor(clipped / rollout.numel(), dtype=torch.float64)))
         counters["smooth_scale"] = _smooth_scale(cfg.algo, counters["smooth_scale"], share)
         smooth = None
         if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
@@ -230,7 +232,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         if dist.sum(torch.tensor([float(over is not None)])) > 0:
             stopped_by = over or "wall_clock_s"
         row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
-        row["clip_share"] = clipped / rollout.numel()  # rising shares went with the runs that failed (docs/devnotes.md)
+        row["clip_share"] = share
         if ahac is not None:
             row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
         if smoothness is not None:

@@ -39,6 +39,8 @@ from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
+from .shac import _finite_rows, _tuple
+
 __all__ = ["PolicySmoothnessLoss"]
 
 
@@ -86,7 +88,7 @@ class PolicySmoothnessLoss(LossModule):
     @property
     def in_keys(self) -> list[NestedKey]:
         k = self.tensor_keys
-        return [k.observation, ("next", *((k.done,) if isinstance(k.done, str) else k.done))]
+        return [k.observation, ("next", *_tuple(k.done))]
 
     @property
     def out_keys(self) -> list[str]:
@@ -102,9 +104,8 @@ class PolicySmoothnessLoss(LossModule):
         k = self.tensor_keys
         if tensordict.ndim < 1:
             raise ValueError("the rollout needs a time dimension as its last batch dimension ([*B, T])")
-        obs = tensordict.get(k.observation).detach()
-        finite = torch.isfinite(obs).all(-1)  # a world that blew up this rollout is left out
-        obs = torch.where(finite.unsqueeze(-1), obs, torch.zeros_like(obs))
+        obs, bad = _finite_rows(tensordict.get(k.observation).detach(), tensordict.batch_size)
+        finite = ~bad  # a world-step that blew up is left out
         action = self._action(obs)
         done = tensordict.get(("next", k.done)).reshape(finite.shape).bool()
         keep = (~done[..., :-1] & finite[..., :-1] & finite[..., 1:]).to(action.dtype)
