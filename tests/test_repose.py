@@ -64,3 +64,16 @@ def test_start_poses_keep_the_fingers_out_of_the_cube():
     assert not torch.equal(hand, rest)  # still noisy starts
     td["action"] = torch.zeros(64, env.action_spec.shape[-1])
     assert int(env.step(td)["next", "info", "sim_failures"].sum()) == 0
+
+
+def test_evaluation_breaks_success_down_by_the_goal_angle():
+    from dexmots_rl.algorithms.evaluation import evaluate_policy
+    from dexmots_rl.algorithms.networks import make_networks
+
+    task = {"name": "repose_cube", "max_episode_steps": 2}
+    env = make_env(task["name"], num_envs=1, differentiable=False, seed=0)
+    actor, _, _ = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1], (8,))
+    quartiles = evaluate_policy(actor, task, episodes=8, seed=0)["success_by_goal_angle"]
+    assert [q["episodes"] for q in quartiles] == [2, 2, 2, 2]
+    # the goal turns by q_z(a) q_x(b) with |a|, |b| <= 1 rad: at most 2 rad in all, sorted low to high
+    assert 0.0 <= quartiles[0]["low"] <= quartiles[0]["high"] <= quartiles[3]["low"] <= quartiles[3]["high"] <= 2.0

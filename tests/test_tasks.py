@@ -62,6 +62,16 @@ def test_declared_reward_terms_and_success(task):
     assert torch.isfinite(nxt["reward"]).all()
 
 
+def test_evaluation_breakdowns_give_one_value_per_episode(task):
+    from dexmots_rl.algorithms.evaluation import _episode_values
+
+    env = make_env(task, num_envs=N, differentiable=False, seed=2)
+    rollout = env.rollout(2, break_when_any_done=False)
+    for name, key in env.base_env.breakdowns.items():
+        values = _episode_values(env.base_env, rollout, key)
+        assert values.shape == (N,) and bool(torch.isfinite(values).all()), name
+
+
 def test_reference_window_shapes(task):
     env = make_env(task, num_envs=N, differentiable=False, seed=2, raw=True)
     td = env.reset()

@@ -6,7 +6,7 @@ the task's success flag at the last step (screw_claw: final |θ − θ*| below 0
 the final pose error is ``‖achieved_goal − goal‖`` at the last step; time to success is the first step
 at which the flag was set, over the successful episodes. ``success_by_<name>`` breaks the success rate
 down by quartiles of each randomised parameter the task names (``DexEnv.breakdowns``, e.g. the knob's
-joint friction).
+joint friction, or repose_cube's goal angle).
 
 Example:
     >>> from omegaconf import OmegaConf
@@ -62,7 +62,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         "mean_time_to_success_s": float(tts.mean()) if won.any() else float("nan"),
         "sim_failures": int(nxt.get(("info", "sim_failures"))[:, -1].sum()),
         # where the misses are, by the task's randomised parameters (e.g. the knob's friction)
-        **{f"success_by_{name}": _success_by(rollout.get(key)[:, 0].reshape(-1), won)
+        **{f"success_by_{name}": _success_by(_episode_values(base, rollout, key), won)
            for name, key in base.breakdowns.items()},
     }
 
@@ -71,6 +71,13 @@ def periodic_episodes(eval_cfg) -> int:
     """Episodes of an evaluation during training: ``eval.curve_episodes`` (learning curves can be cheaper
     than the final evaluation) or, when null, ``eval.episodes``."""
     return eval_cfg.get("curve_episodes") or eval_cfg.episodes
+
+
+def _episode_values(env, rollout, key) -> torch.Tensor:
+    """[N] per-episode values of a breakdown: a key read at the first step, or ``key(env, first step)``."""
+    if callable(key):
+        return key(env, rollout[:, 0]).reshape(-1)
+    return rollout.get(key)[:, 0].reshape(-1)
 
 
 def _success_by(values: torch.Tensor, won: torch.Tensor, groups: int = 4) -> list[dict]:

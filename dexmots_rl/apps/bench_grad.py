@@ -33,7 +33,7 @@ import math
 
 import torch
 
-from .bench_setup import bench_task, load_task_scene
+from .bench_setup import bench_task, load_task_scene, task_contact
 
 __all__ = ["GOAL_ANGLE", "NOISE", "hinge_loss_rollout", "grad_row", "run_grad"]
 
@@ -69,16 +69,17 @@ def hinge_loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, goal: float
 
 
 def grad_row(scene, task, horizon: int, contact: bool, eps: float, num_entries: int, floor_rel: float,
-             generator: torch.Generator, device: str = "cpu", loss_kind: str = "pose", draws: int = 8) -> dict:
+             generator: torch.Generator, device: str = "cpu", loss_kind: str = "pose", draws: int = 8,
+             law=None) -> dict:
     """One row of the gradient benchmark (see the module docstring), over ``draws`` random action
     sequences simulated side by side: draw d owns worlds ``d * (1 + 2k) ...`` (nominal, then +eps/-eps
-    per checked entry)."""
+    per checked entry). ``law``: the task's ContactParams (None: the defaults, the claw's)."""
     from ..sim import Simulator
 
     nu = scene.num_hand_dofs
     k = min(num_entries, horizon * nu)
     per_draw = 1 + 2 * k
-    sim = Simulator(scene, draws * per_draw, device=device, dtype=torch.float64)
+    sim = Simulator(scene, draws * per_draw, device=device, dtype=torch.float64, contact=law)
     opts = dict(dtype=torch.float64, device=sim.torch_device)
     base = torch.tensor(task.squeeze_action if contact else (0.0,) * nu, dtype=torch.float64)
     entries = torch.stack([torch.randperm(horizon * nu, generator=generator)[:k] for _ in range(draws)])  # [D, k]
@@ -137,7 +138,7 @@ def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, n
         for horizon in horizons:
             for contact in (True, False):
                 rows.append(grad_row(scene, setup, horizon, contact, eps, num_entries, floor_rel, generator,
-                                     device, loss_kind, draws))
+                                     device, loss_kind, draws, task_contact(task)))
                 log.info("grad: %s", rows[-1])
             # growth of a free (contact-less) rollout is the baseline: a position loss on a second-order
             # system already weighs early actions ~H^2 more than the last one

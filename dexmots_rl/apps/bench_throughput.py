@@ -25,7 +25,7 @@ import os
 import numpy as np
 import torch
 
-from .bench_setup import bench_task, device_name, load_task_scene, measure_rate
+from .bench_setup import bench_task, device_name, load_task_scene, measure_rate, task_contact
 
 __all__ = ["SimBench", "MujocoBench", "run_throughput"]
 
@@ -36,10 +36,10 @@ class SimBench:
     """Our simulator with ``num_envs`` worlds, settled into contact, ready to time."""
 
     def __init__(self, scene, task, num_envs: int, device: str, substeps: int, settle_steps: int,
-                 chunk_steps: int, obs: str = "state"):
+                 chunk_steps: int, obs: str = "state", contact=None):
         from ..sim import Control, Simulator
 
-        self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps)
+        self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps, contact=contact)
         self.chunk_steps = chunk_steps
         self.renderer = None
         if obs == "rgb":
@@ -171,7 +171,7 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
     rows = []
     for n in num_envs:
         log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
-        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs)
+        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs, task_contact(task))
         mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps)
         row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
                "mujoco_contact_fraction": mj.contact_fraction()}

@@ -41,7 +41,8 @@ class DexEnv(EnvBase):
 
     batch_locked = True
     asset: str = ""
-    # evaluation breakdowns: name -> key of a per-episode value; dexmots-eval reports success by its quartiles
+    # evaluation breakdowns: name -> key of a per-episode value, or a function (env, first-step TensorDict [N])
+    # -> [N] values; dexmots-eval reports success by its quartiles
     breakdowns: dict = {}
     bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
     contact_params = None  # the scene's ContactParams (None: the defaults, sized for the claw)

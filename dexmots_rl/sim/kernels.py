@@ -34,6 +34,8 @@ __all__ = ["build_kernels"]
 # (~85 s for the claw substep kernel with its adjoint, 2 cores); -O0 compiles in 14 s but runs 18x slower.
 # Override with DEXMOTS_WARP_OPT=0..3 (e.g. 0 while iterating on kernel code).
 OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "2"))
+# CUDA builds only: warp 1.19 does not pass fast_math to its CPU compiler (a CPU run with it set measured the
+# same within noise, session 12)
 FAST_MATH = os.environ.get("DEXMOTS_WARP_FAST_MATH", "0") == "1"
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
@@ -99,6 +101,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         effort: wp.array(dtype=dtype)  # PD drive saturation per dof (0: none)
         point_pos: wp.array(dtype=vec3)
         point_radius: wp.array(dtype=dtype)
+        link_reach: wp.array(dtype=dtype)  # [F * J] m: max over a link's spheres of |centre| + radius (link frame)
         tip_pos: wp.array(dtype=vec3)
         obj_base_pos: vec3
         obj_base_rot: mat33
@@ -156,7 +159,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, mat43=mat43,
         Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY))
     unit_j, point_jacobian = contact.unit_j, contact.point_jacobian
-    point_contact, sphere_near = contact.point_contact, contact.sphere_near
+    point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
     chain = build_chain(types.SimpleNamespace(
         dtype=dtype, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, matJ3=matJ3, matJJ1=matJJ1, Model=Model,
         Saved=Saved, J=J, hinges_only=HINGES_ONLY, point_jacobian=point_jacobian,
@@ -292,20 +295,22 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             for j in range(J):
                 bias = bias + unit_j(j) * Mb[j, J]
                 M = M + wp.outer(unit_j(j), vecJ_row(Mb, j))
-            # contact of this link's sample spheres: a distance test each, the work only near the object
-            for sp in range(P):
-                pi = i * P + sp
-                if sphere_near(m, x, R, pi, xo) != 0:
-                    p = x + R * fixed_vec3(m.point_pos, pi)
-                    res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
-                    if saved.contact.shape[0] > 0:
-                        saved.contact[ro, pi] = res
-                    fc = vec3(res[0], res[1], res[2])
-                    cforce = cforce + res[6]
-                    f_obj = f_obj - fc
-                    t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, fc)
-                    for j in range(J):
-                        gen = gen + unit_j(j) * res[7 + j]
+            # contact of this link's sample spheres: a distance test each (skipped for the whole link when
+            # none can reach the object), the work only near the object
+            if link_near(m, x, i, xo) != 0:
+                for sp in range(P):
+                    pi = i * P + sp
+                    if sphere_near(m, x, R, pi, xo, Ro) != 0:
+                        p = x + R * fixed_vec3(m.point_pos, pi)
+                        res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
+                        if saved.contact.shape[0] > 0:
+                            saved.contact[ro, pi] = res
+                        fc = vec3(res[0], res[1], res[2])
+                        cforce = cforce + res[6]
+                        f_obj = f_obj - fc
+                        t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, fc)
+                        for j in range(J):
+                            gen = gen + unit_j(j) * res[7 + j]
             # contact with the object's static base: joint forces on the finger, the normal force counts
             # in the summed contact force (no wrench: the base does not move)
             if wp.static(NBASE > 0):

@@ -98,6 +98,12 @@ def _axis_angle_quat(axis: int, angle: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def _goal_turn(env: "ReposeCubeEnv", td: TensorDict) -> torch.Tensor:
+    """[N] rad: how far each episode's goal is turned from the cube's start (an evaluation breakdown)."""
+    goal = td.get(("task", "goal")).to(env.dtype)
+    return quat_angle(env._cube[3:].expand_as(goal[:, 3:]), goal[:, 3:]).squeeze(-1)
+
+
 class ReposeCubeEnv(DexEnv):
     """Allegro palm up + a free cube; see the module docstring."""
 
@@ -115,6 +121,7 @@ class ReposeCubeEnv(DexEnv):
         squeeze_action=(0.0, 0.2, 0.2, 0.2) * 3 + (0.0, 0.0, 0.0, 0.0),
     )
     action_center = REST
+    breakdowns = {"goal_angle": _goal_turn}  # dexmots-eval: success by quartiles of the goal's rotation angle
     plan_problem = PlanProblem(start=CUBE, goal=(0.0, 0.0, 0.1325, 0.8776, 0.4794, 0.0, 0.0), steps=60)
 
     def __init__(self, config: ReposeCubeConfig | None = None, **kwargs):
