@@ -73,7 +73,7 @@ def build_chain(t) -> types.SimpleNamespace:
             row[c] = Mb[j, c]
         return row
 
-    @wp.func
+    @wp.func(inline=True)  # out of line, each of the J calls per finger copied the Model struct (~10 % of a step)
     def link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3, A: matJ3,
                      O: matJ3, saved: Saved, row: int):
         """Link i's contribution to its finger's joint-space mass matrix and bias forces, [M | bias]:

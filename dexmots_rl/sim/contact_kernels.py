@@ -359,7 +359,7 @@ def build_contact(t) -> types.SimpleNamespace:
                              A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
         return saved.contact[row, slot]
 
-    @wp.func
+    @wp.func(inline=True)  # called per sample sphere: out of line, each call copied the Model struct
     def sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3, Ro: mat33):
         """1 when sample sphere pi of a link at (x, R) is close enough to the object (at xo, Ro) to need the
         contact law, else 0: inside the object's bounding sphere grown by the sphere radius and the law's
@@ -384,7 +384,7 @@ def build_contact(t) -> types.SimpleNamespace:
     def adj_sphere_near(m: Model, x: vec3, R: mat33, pi: int, xo: vec3, Ro: mat33, adj_ret: int):
         return
 
-    @wp.func
+    @wp.func(inline=True)
     def link_near(m: Model, x: vec3, i: int, xo: vec3):
         """1 when some sample sphere of link i (origin x) may pass :func:`sphere_near`, else 0: a sphere's
         centre is within ``link_reach - radius`` of the link origin, so a link origin farther than the
