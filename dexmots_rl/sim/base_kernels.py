@@ -43,7 +43,7 @@ def build_base(t) -> types.SimpleNamespace:
         by it; on a face, exact once the other faces are a few smoothing lengths below)."""
         return smooth_box(fixed_vec3(m.box_half, b), p, m.smooth)
 
-    @wp.func
+    @wp.func(inline=True)  # per sphere and box: out of line, each call copied the Model struct
     def base_near(m: Model, x: vec3, R: mat33, pi: int, b: int):
         """1 when sample sphere pi of a link at (x, R) may touch box b, else 0: its centre is inside the box
         grown by the sphere radius and the contact law's cutoff band. The smooth distance is never below
@@ -60,6 +60,23 @@ def build_base(t) -> types.SimpleNamespace:
 
     @wp.func_grad(base_near)
     def adj_base_near(m: Model, x: vec3, R: mat33, pi: int, b: int, adj_ret: int):
+        return
+
+    @wp.func(inline=True)
+    def link_base_near(m: Model, x: vec3, i: int, b: int):
+        """1 when some sample sphere of link i (origin x) may pass :func:`base_near` for box b, else 0: a
+        sphere's centre is within ``link_reach - radius`` of the link origin along every box axis too, so a
+        link origin farther than the box's half size + the link's reach + the band on some axis has none
+        near. A branch condition: empty adjoint."""
+        pl = wp.transpose(m.box_rot[b]) * (x - m.box_pos[b])
+        reach = m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta
+        h = m.box_half[b]
+        if wp.abs(pl[0]) < h[0] + reach and wp.abs(pl[1]) < h[1] + reach and wp.abs(pl[2]) < h[2] + reach:
+            return 1
+        return 0
+
+    @wp.func_grad(link_base_near)
+    def adj_link_base_near(m: Model, x: vec3, i: int, b: int, adj_ret: int):
         return
 
     @wp.func
@@ -86,18 +103,19 @@ def build_base(t) -> types.SimpleNamespace:
         force. ``saved`` (row ``row``, empty when untaped): each contact's result for the reverse pass."""
         gen = vecJ()
         fn = dtype(0.0)
-        for sp in range(P):
-            pi = i * P + sp
-            for b in range(NB):
-                if base_near(m, x, R, pi, b) != 0:
-                    p = x + R * fixed_vec3(m.point_pos, pi)
-                    slot = NPTS + pi * NB + b
-                    res = base_contact(m, p, m.point_radius[pi], b, base, A, O, qdf, saved, row, slot)
-                    if saved.contact.shape[0] > 0:
-                        saved.contact[row, slot] = res
-                    fn = fn + res[6]
-                    for j in range(J):
-                        gen = gen + unit_j(j) * res[7 + j]
+        for b in range(NB):
+            if link_base_near(m, x, i, b) != 0:  # the link's spheres are tested only near the box
+                for sp in range(P):
+                    pi = i * P + sp
+                    if base_near(m, x, R, pi, b) != 0:
+                        p = x + R * fixed_vec3(m.point_pos, pi)
+                        slot = NPTS + pi * NB + b
+                        res = base_contact(m, p, m.point_radius[pi], b, base, A, O, qdf, saved, row, slot)
+                        if saved.contact.shape[0] > 0:
+                            saved.contact[row, slot] = res
+                        fn = fn + res[6]
+                        for j in range(J):
+                            gen = gen + unit_j(j) * res[7 + j]
         return gen, fn
 
     return types.SimpleNamespace(box_sdf=box_sdf, base_near=base_near, base_contact=base_contact,
