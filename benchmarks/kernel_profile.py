@@ -92,8 +92,9 @@ def main() -> None:
     import warp as wp
 
     wp.config.cpu_compiler_flags = LINE_TABLES  # before the kernels are built
-    from dexmots_rl.apps.bench_setup import bench_task, load_task_scene, task_contact
+    from dexmots_rl.apps.bench_setup import bench_task, load_task_scene
     from dexmots_rl.apps.bench_throughput import SimBench
+    from dexmots_rl.envs import task_contact
 
     scene, _ = load_task_scene(args.task)
     bench = SimBench(scene, bench_task(args.task), args.num_envs, "cpu", 16, 30, 10, contact=task_contact(args.task))

@@ -33,7 +33,8 @@ import math
 
 import torch
 
-from .bench_setup import bench_task, load_task_scene, task_contact
+from ..envs import task_contact
+from .bench_setup import bench_task, load_task_scene
 
 __all__ = ["GOAL_ANGLE", "NOISE", "hinge_loss_rollout", "grad_row", "run_grad"]
 
@@ -131,6 +132,7 @@ def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, n
     """All rows; returns the result dict printed by ``dexmots-bench grad``."""
     setup = bench_task(task)
     scene, _ = load_task_scene(task)
+    law = task_contact(task)  # the contact law the task's env simulates with
     generator = torch.Generator().manual_seed(seed)
     rows = []
     log.info("grad: the first row compiles the float64 kernels when not cached")
@@ -138,7 +140,7 @@ def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, n
         for horizon in horizons:
             for contact in (True, False):
                 rows.append(grad_row(scene, setup, horizon, contact, eps, num_entries, floor_rel, generator,
-                                     device, loss_kind, draws, task_contact(task)))
+                                     device, loss_kind, draws, law))
                 log.info("grad: %s", rows[-1])
             # growth of a free (contact-less) rollout is the baseline: a position loss on a second-order
             # system already weighs early actions ~H^2 more than the last one

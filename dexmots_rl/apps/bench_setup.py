@@ -14,7 +14,7 @@ import torch
 
 from ..envs import BenchPoses, list_tasks, task_entry, task_scene
 
-__all__ = ["bench_tasks", "bench_task", "load_task_scene", "task_contact", "device_name", "measure_rate"]
+__all__ = ["bench_tasks", "bench_task", "load_task_scene", "device_name", "measure_rate"]
 
 
 def bench_tasks() -> list[str]:
@@ -34,15 +34,6 @@ def load_task_scene(task: str):
     """``(SceneModel, asset path)`` of a registered task's MJCF."""
     bench_task(task)
     return task_scene(task), task_entry(task).env_class.asset_path()
-
-
-def task_contact(task: str):
-    """The task's :class:`~dexmots_rl.sim.ContactParams` (what its env simulates with), or None for the
-    defaults. A benchmark must simulate with it: the Allegro tasks' short-range law (sharpness 1000/m) has
-    a 1.2 cm cutoff band where the default (the claw's 200/m) has 6 cm, so with the defaults the fingers
-    are held ~1 cm off the object and every sphere near it runs the contact law."""
-    bench_task(task)
-    return task_entry(task).env_class.contact_params
 
 
 def device_name(device: str) -> str:

@@ -25,7 +25,8 @@ import os
 import numpy as np
 import torch
 
-from .bench_setup import bench_task, device_name, load_task_scene, measure_rate, task_contact
+from ..envs import task_contact
+from .bench_setup import bench_task, device_name, load_task_scene, measure_rate
 
 __all__ = ["SimBench", "MujocoBench", "run_throughput"]
 
@@ -167,11 +168,12 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
     """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``."""
     setup = bench_task(task)
     scene, path = load_task_scene(task)
+    law = task_contact(task)  # the contact law the task's env simulates with
     sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
     rows = []
     for n in num_envs:
         log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
-        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs, task_contact(task))
+        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs, law)
         mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps)
         row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
                "mujoco_contact_fraction": mj.contact_fraction()}

@@ -10,7 +10,7 @@ from .actions import ACTION_TYPES, ActionMap, validate_action
 from .base import DexEnv, ScriptedPolicy
 from .config import BenchPoses, PlanProblem, TaskConfig
 from .references import load_reference_bank
-from .registry import OBS_MODES, TASKS, list_tasks, make_env, register_task, task_config, task_entry, task_scene
+from .registry import OBS_MODES, TASKS, list_tasks, make_env, register_task, task_config, task_contact, task_entry, task_scene
 from .rewards import RewardCoefficients, angle_tracking_reward
 from .transforms import GOAL_MODES, POLICY_KEYS, GoalConditioning, observation_transform
 from . import tasks  # noqa: E402,F401  (registers the tasks)
@@ -24,4 +24,4 @@ except ImportError:  # pragma: no cover - gymnasium is a dependency, but keep to
 __all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "BenchPoses", "DexEnv", "ScriptedPolicy", "GOAL_MODES", "GoalConditioning",
            "OBS_MODES", "POLICY_KEYS", "PlanProblem", "RewardCoefficients", "TASKS", "TaskConfig",
            "load_reference_bank", "list_tasks", "make_env", "observation_transform", "register_task",
-           "angle_tracking_reward", "task_config", "task_entry", "task_scene", "ScrewClawConfig", "ScrewClawEnv"]
+           "angle_tracking_reward", "task_config", "task_contact", "task_entry", "task_scene", "ScrewClawConfig", "ScrewClawEnv"]

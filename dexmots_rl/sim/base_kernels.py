@@ -43,6 +43,15 @@ def build_base(t) -> types.SimpleNamespace:
         by it; on a face, exact once the other faces are a few smoothing lengths below)."""
         return smooth_box(fixed_vec3(m.box_half, b), p, m.smooth)
 
+    @wp.func(inline=True)
+    def in_grown_box(m: Model, b: int, point: vec3, reach: dtype):
+        """1 when ``point`` (world frame) lies inside box b grown by ``reach`` on every side, else 0."""
+        pl = wp.transpose(m.box_rot[b]) * (point - m.box_pos[b])
+        h = m.box_half[b]
+        if wp.abs(pl[0]) < h[0] + reach and wp.abs(pl[1]) < h[1] + reach and wp.abs(pl[2]) < h[2] + reach:
+            return 1
+        return 0
+
     @wp.func(inline=True)  # per sphere and box: out of line, each call copied the Model struct
     def base_near(m: Model, x: vec3, R: mat33, pi: int, b: int):
         """1 when sample sphere pi of a link at (x, R) may touch box b, else 0: its centre is inside the box
@@ -51,11 +60,7 @@ def build_base(t) -> types.SimpleNamespace:
         test only skips the work. A branch condition: empty adjoint."""
         rad = m.point_radius[pi]
         if rad > dtype(0.0):
-            pl = wp.transpose(m.box_rot[b]) * (x + R * m.point_pos[pi] - m.box_pos[b])
-            reach = rad + dtype(CONTACT_CUTOFF) / m.beta
-            h = m.box_half[b]
-            if wp.abs(pl[0]) < h[0] + reach and wp.abs(pl[1]) < h[1] + reach and wp.abs(pl[2]) < h[2] + reach:
-                return 1
+            return in_grown_box(m, b, x + R * m.point_pos[pi], rad + dtype(CONTACT_CUTOFF) / m.beta)
         return 0
 
     @wp.func_grad(base_near)
@@ -66,14 +71,9 @@ def build_base(t) -> types.SimpleNamespace:
     def link_base_near(m: Model, x: vec3, i: int, b: int):
         """1 when some sample sphere of link i (origin x) may pass :func:`base_near` for box b, else 0: a
         sphere's centre is within ``link_reach - radius`` of the link origin along every box axis too, so a
-        link origin farther than the box's half size + the link's reach + the band on some axis has none
-        near. A branch condition: empty adjoint."""
-        pl = wp.transpose(m.box_rot[b]) * (x - m.box_pos[b])
-        reach = m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta
-        h = m.box_half[b]
-        if wp.abs(pl[0]) < h[0] + reach and wp.abs(pl[1]) < h[1] + reach and wp.abs(pl[2]) < h[2] + reach:
-            return 1
-        return 0
+        link origin outside the box grown by the link's reach + the band has none near. A branch
+        condition: empty adjoint."""
+        return in_grown_box(m, b, x, m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta)
 
     @wp.func_grad(link_base_near)
     def adj_link_base_near(m: Model, x: vec3, i: int, b: int, adj_ret: int):

@@ -365,8 +365,7 @@ def build_contact(t) -> types.SimpleNamespace:
         contact law, else 0: inside the object's bounding sphere grown by the sphere radius and the law's
         cutoff band and, for a convex polytope, below every face plane by less than that reach. The smooth
         distance is never below the largest face distance, so a sphere this test skips gets exactly zero
-        from contact_force anyway; the test only skips the work (on the Allegro knob, most finger spheres
-        inside the bounding sphere are above the top face). A branch condition: its empty custom adjoint
+        from contact_force anyway; the test only skips the work. A branch condition: its empty custom adjoint
         keeps the reverse pass from differentiating the position and distance test of every sphere."""
         rad = m.point_radius[pi]
         if rad > dtype(0.0):
