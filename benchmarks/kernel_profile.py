@@ -87,6 +87,10 @@ def main() -> None:
     ap.add_argument("--num-envs", type=int, default=256)
     ap.add_argument("--seconds", type=float, default=15.0, help="seconds of sampling")
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--addresses", type=int, default=0,
+                    help="also print the N hottest instructions with their inline chains")
+    ap.add_argument("--reverse", action="store_true",
+                    help="profile the reverse pass (the substeps' adjoint launches) instead of the forward step")
     args = ap.parse_args()
     os.environ["DEXMOTS_CPU_THREADS"] = "1"
     import warp as wp
@@ -109,6 +113,9 @@ def main() -> None:
     size = int(next(line.split()[2] for line in _run("objdump", "-h", obj).splitlines()
                     if line.split()[1:2] == [".ltext"]), 16)
 
+    chunk, what = bench.forward_chunk, "forward"
+    if args.reverse:
+        chunk, what = bench.reverse_chunk(), "reverse pass"
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "perf.data")
         perf = subprocess.Popen(["perf", "record", "-F", "4000", "-p", str(os.getpid()), "-o", data],
@@ -116,7 +123,7 @@ def main() -> None:
         time.sleep(1.0)
         steps, start = 0, time.perf_counter()
         while time.perf_counter() - start < args.seconds:
-            steps += bench.forward_chunk()
+            steps += chunk()
         rate = steps / (time.perf_counter() - start)
         perf.send_signal(2)
         perf.wait()
@@ -146,7 +153,7 @@ def main() -> None:
         func, stmt = _statement(cpp, int(num)) if num.isdigit() and int(num) > 0 else ("?", "?")
         by_func[func] += n
         by_stmt[f"{func}: {stmt}"] += n
-    hot = collections.Counter()
+    hot, ins_at = collections.Counter(), {}
     asm = _run("objdump", "-d", "--no-show-raw-insn", "-j", ".ltext", obj)
     for line in asm.splitlines():
         head, _, ins = line.partition(":")
@@ -156,11 +163,12 @@ def main() -> None:
             continue
         if addr in counts:
             hot[ins.strip()[:60]] += counts[addr]
+            ins_at[addr] = ins.strip()[:60]
 
     def pct(n):
         return f"{100.0 * n / total:5.1f} %"
 
-    print(f"{args.task}, {args.num_envs} worlds, one thread: {rate:,.0f} env-steps/s forward; {total} samples, "
+    print(f"{args.task}, {args.num_envs} worlds, one thread: {rate:,.0f} env-steps/s {what}; {total} samples, "
           f"{pct(len(kernel))} in the kernel module")
     print("\nby library (outside the kernel module):")
     for name, n in other.most_common(6):
@@ -173,6 +181,11 @@ def main() -> None:
         print(f"  {pct(n)}  {name[:150]}")
     copies = sum(n for ins, n in hot.items() if ins.startswith("rep movs"))
     print(f"\nstruct arguments copied by value (rep movs): {pct(copies)}")
+    if args.addresses:
+        print(f"\nhottest {args.addresses} instructions (innermost inline frame first):")
+        for ip, n in counts.most_common(args.addresses):
+            frames = [c.rpartition("/")[2] for c in chains.get(ip, []) if ".cpp:" in c]
+            print(f"  {pct(n)}  {hex(ip)}  {ins_at.get(ip, '?'):40s}  {' < '.join(frames)[:120]}")
     sys.stdout.flush()
 
 

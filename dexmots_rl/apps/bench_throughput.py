@@ -91,15 +91,32 @@ class SimBench:
         return self.chunk_steps * self.sim.num_worlds
 
 
-    def split_ms(self, min_time: float, sync) -> dict:
-        """Milliseconds per env step (all worlds, no Python around them) of the taped forward kernels and
-        of the reverse pass alone: where ``fwdbwd`` spends its time."""
+    def _taped_step(self):
+        """A taped trajectory of one env step from the settled state, and all-ones output adjoints."""
         from ..sim.stepper import Trajectory
 
         traj = Trajectory(self.sim)
         c = self.control
-        traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.sim.pack_params(self.params), self.sim._zeros(self.sim.num_worlds, 6)])
-        grads = [torch.ones_like(t) for t in traj.outputs()]
+        traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.sim.pack_params(self.params),
+                                      self.sim._zeros(self.sim.num_worlds, 6)])
+        traj.forward()
+        return traj, [torch.ones_like(t) for t in traj.outputs()]
+
+    def reverse_chunk(self):
+        """A chunk function that runs the reverse pass of one taped step ``chunk_steps`` times."""
+        traj, grads = self._taped_step()
+
+        def chunk() -> int:
+            for _ in range(self.chunk_steps):
+                traj.backward(grads)
+            return self.chunk_steps * self.sim.num_worlds
+        return chunk
+
+    def split_ms(self, min_time: float, sync) -> dict:
+        """Milliseconds per env step (all worlds, no Python around them) of the taped forward kernels and
+        of the reverse pass alone: where ``fwdbwd`` spends its time."""
+        traj, grads = self._taped_step()
+
         def one_step(fn):
             def chunk() -> int:
                 fn()

@@ -17,8 +17,9 @@ __all__ = ["build_chain"]
 
 def build_chain(t) -> types.SimpleNamespace:
     """The link functions for the types and scene constants in ``t`` (attributes: dtype, vec3, mat33,
-    vecJ, matJ, matJ3, matJJ1, Model, Saved, J, hinges_only, point_jacobian, point_jacobian_vjp)."""
+    vecJ, matJ, matJ3, matJJ1, vecC, Model, Saved, J, hinges_only, point_jacobian, point_jacobian_vjp)."""
     dtype, vec3, mat33, vecJ, matJ, matJ3, matJJ1 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ, t.matJ3, t.matJJ1
+    vecC = t.vecC
     Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
     point_jacobian, point_jacobian_vjp = t.point_jacobian, t.point_jacobian_vjp
 
@@ -67,11 +68,29 @@ def build_chain(t) -> types.SimpleNamespace:
         return Jw
 
     @wp.func
-    def vecJ_row(Mb: matJJ1, j: int):
-        row = vecJ()
-        for c in range(J):
-            row[c] = Mb[j, c]
-        return row
+    def mass_block(MB: matJJ1):
+        """The mass matrix M of a finger's summed [M | bias]."""
+        M = matJ()
+        for j in range(J):
+            for c in range(J):
+                M[j, c] = MB[j, c]
+        return M
+
+    @wp.func
+    def bias_column(MB: matJJ1):
+        """The bias forces of a finger's summed [M | bias]."""
+        bias = vecJ()
+        for j in range(J):
+            bias[j] = MB[j, J]
+        return bias
+
+    @wp.func
+    def joint_forces(c: vecC):
+        """The joint forces of a (summed) contact result."""
+        gen = vecJ()
+        for j in range(J):
+            gen[j] = c[7 + j]
+        return gen
 
     @wp.func(inline=True)  # out of line, each of the J calls per finger copied the Model struct (~10 % of a step)
     def link_inertia(m: Model, i: int, base: int, R: mat33, x: vec3, acc: vec3, al: vec3, om: vec3, A: matJ3,
@@ -150,4 +169,5 @@ def build_chain(t) -> types.SimpleNamespace:
             wp.adjoint[O] += a_O
 
     return types.SimpleNamespace(fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, fixed=fixed,
-                                 angular_jacobian=angular_jacobian, vecJ_row=vecJ_row, link_inertia=link_inertia)
+                                 angular_jacobian=angular_jacobian, mass_block=mass_block,
+                                 bias_column=bias_column, joint_forces=joint_forces, link_inertia=link_inertia)

@@ -161,11 +161,12 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     unit_j, point_jacobian = contact.unit_j, contact.point_jacobian
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
     chain = build_chain(types.SimpleNamespace(
-        dtype=dtype, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, matJ3=matJ3, matJJ1=matJJ1, Model=Model,
-        Saved=Saved, J=J, hinges_only=HINGES_ONLY, point_jacobian=point_jacobian,
+        dtype=dtype, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, matJ3=matJ3, matJJ1=matJJ1, vecC=vecC,
+        Model=Model, Saved=Saved, J=J, hinges_only=HINGES_ONLY, point_jacobian=point_jacobian,
         point_jacobian_vjp=contact.point_jacobian_vjp))
     fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
-    vecJ_row, link_inertia = chain.vecJ_row, chain.link_inertia
+    mass_block, bias_column, link_inertia = chain.mass_block, chain.bias_column, chain.link_inertia
+    joint_forces = chain.joint_forces
     palm = None
     if PALM:
         palm = build_palm(types.SimpleNamespace(
@@ -242,9 +243,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         A function rather than inline code keeps each compiled frame small: warp value-initialises every
         local of a frame on entry. ``saved*`` (rows: ``ro``; empty when untaped): results kept for the
         reverse pass."""
-        f_obj = vec3()
+        contacts = vecC()  # the object contacts' results summed: force, (unused), normal force, joint forces
         t_obj = vec3()
-        cforce = dtype(0.0)
+        cforce = dtype(0.0)  # normal forces of the base contacts
         R = fixed_mat33(m.base_rot, f)
         x = fixed_vec3(m.base_pos, f)
         om = vec3()  # angular velocity of the parent link
@@ -253,9 +254,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         o_prev = x
         O = matJ3()  # joint origins, one row per link
         A = matJ3()  # joint axes (world)
-        M = matJ()
-        bias = vecJ()
-        gen = vecJ()  # contact generalized forces
+        MB = matJJ1()  # the finger's [M | bias], summed over its links
+        gen = vecJ()  # generalized forces of the base contacts
         qdf = vecJ()
         for k in range(J):
             qdf[k] = qd[r, f * J + k]
@@ -292,9 +292,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             Mb = link_inertia(m, i, f * J, R, x, acc, al, om, A, O, saved, ro)
             if saved.inertia.shape[0] > 0:
                 saved.inertia[ro, i] = Mb
-            for j in range(J):
-                bias = bias + unit_j(j) * Mb[j, J]
-                M = M + wp.outer(unit_j(j), vecJ_row(Mb, j))
+            MB = MB + Mb
             # contact of this link's sample spheres: a distance test each (skipped for the whole link when
             # none can reach the object), the work only near the object
             if link_near(m, x, i, xo) != 0:
@@ -305,19 +303,21 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                         res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
                         if saved.contact.shape[0] > 0:
                             saved.contact[ro, pi] = res
-                        fc = vec3(res[0], res[1], res[2])
-                        cforce = cforce + res[6]
-                        f_obj = f_obj - fc
-                        t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, fc)
-                        for j in range(J):
-                            gen = gen + unit_j(j) * res[7 + j]
+                        # summed as whole vectors: a per-component sum unrolls J adjoint updates per sphere
+                        contacts = contacts + res
+                        t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, vec3(res[0], res[1], res[2]))
             # contact with the object's static base: joint forces on the finger, the normal force counts
             # in the summed contact force (no wrench: the base does not move)
             if wp.static(NBASE > 0):
                 gen_b, fn_b = link_base_contacts(m, x, R, i, f * J, A, O, qdf, saved, ro)
                 gen = gen + gen_b
                 cforce = cforce + fn_b
+        f_obj = -vec3(contacts[0], contacts[1], contacts[2])
+        cforce = cforce + contacts[6]
+        gen = gen + joint_forces(contacts)
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
+        M = mass_block(MB)
+        bias = bias_column(MB)
         rhs = vecJ()
         diag = matJ()
         for k in range(J):
