@@ -72,12 +72,14 @@ def _section_base(obj: str, section: str, symbol_hint: str) -> int:
 def _statement(cpp_lines: list[str], line: int) -> tuple[str, str]:
     """(warp function, Python statement) that generated C++ line ``line`` (1-based) belongs to."""
     j = line - 1
-    while j > 0 and "<L " not in cpp_lines[j]:
+    while j > 0 and "<L " not in cpp_lines[j] and not cpp_lines[j].startswith("static"):
         j -= 1
     k = j
     while k > 0 and not cpp_lines[k].startswith("static"):
         k -= 1
     func = re.sub(r"build_\w+?__locals__", "", cpp_lines[k].split("(")[0].split()[-1])
+    if j == k:  # between a function's header and its first statement: its locals' initialisation
+        return func, "(entry: locals initialised)"
     return func, cpp_lines[j].strip().lstrip("/ ").split("<L")[0].strip()
 
 

@@ -30,10 +30,10 @@ __all__ = ["build_base"]
 def build_base(t) -> types.SimpleNamespace:
     """The base-contact functions for the types, scene constants and functions in ``t`` (attributes: dtype,
     vec3, vec4, mat33, vecJ, matJ3, vecC, Model, Saved, J, P, NB (boxes), NPTS (sample spheres in the
-    hand), contact_force, unit_j, fixed_vec3, fixed_mat33, smooth_box)."""
-    dtype, vec3, mat33, vecJ, matJ3 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ3
+    hand), contact_force, joint_forces, fixed_vec3, fixed_mat33, smooth_box)."""
+    dtype, vec3, mat33, vecJ, matJ3, vecC = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ3, t.vecC
     Model, Saved, J, P, NB, NPTS = t.Model, t.Saved, t.J, t.P, t.NB, t.NPTS
-    contact_force, unit_j, fixed_vec3, fixed_mat33 = t.contact_force, t.unit_j, t.fixed_vec3, t.fixed_mat33
+    contact_force, joint_forces, fixed_vec3, fixed_mat33 = t.contact_force, t.joint_forces, t.fixed_vec3, t.fixed_mat33
     smooth_box = t.smooth_box
 
     @wp.func
@@ -79,6 +79,19 @@ def build_base(t) -> types.SimpleNamespace:
     def adj_link_base_near(m: Model, x: vec3, i: int, b: int, adj_ret: int):
         return
 
+    @wp.func(inline=True)
+    def link_near_base(m: Model, x: vec3, i: int):
+        """1 when link i (origin x) passes :func:`link_base_near` for some box, else 0: finger_step calls
+        :func:`link_base_contacts` (out of line: the call copies the Model struct) only then."""
+        near = int(0)
+        for b in range(NB):
+            near = near + link_base_near(m, x, i, b)
+        return near
+
+    @wp.func_grad(link_near_base)
+    def adj_link_near_base(m: Model, x: vec3, i: int, adj_ret: int):
+        return
+
     @wp.func
     def base_contact(m: Model, p: vec3, rad: dtype, b: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,
                      saved: Saved, row: int, slot: int):
@@ -101,8 +114,7 @@ def build_base(t) -> types.SimpleNamespace:
         """Contact of every sample sphere of link i (frame x, R; finger dofs from ``base``, Jacobian rows
         A, O, joint velocities qdf) with every base box: the summed generalised joint forces and normal
         force. ``saved`` (row ``row``, empty when untaped): each contact's result for the reverse pass."""
-        gen = vecJ()
-        fn = dtype(0.0)
+        total = vecC()  # the contacts' results summed (a whole-vector sum: fewer unrolled adjoint updates)
         for b in range(NB):
             if link_base_near(m, x, i, b) != 0:  # the link's spheres are tested only near the box
                 for sp in range(P):
@@ -113,10 +125,8 @@ def build_base(t) -> types.SimpleNamespace:
                         res = base_contact(m, p, m.point_radius[pi], b, base, A, O, qdf, saved, row, slot)
                         if saved.contact.shape[0] > 0:
                             saved.contact[row, slot] = res
-                        fn = fn + res[6]
-                        for j in range(J):
-                            gen = gen + unit_j(j) * res[7 + j]
-        return gen, fn
+                        total = total + res
+        return joint_forces(total), total[6]
 
     return types.SimpleNamespace(box_sdf=box_sdf, base_near=base_near, base_contact=base_contact,
-                                 link_base_contacts=link_base_contacts)
+                                 link_near_base=link_near_base, link_base_contacts=link_base_contacts)

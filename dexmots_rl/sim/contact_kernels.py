@@ -24,9 +24,10 @@ CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONT
 
 def build_contact(t) -> types.SimpleNamespace:
     """The contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3, vec4,
-    mat33, vecJ, matJ3, vecC, mat43, Model, Saved, J, K, shape, hinges_only)."""
+    mat33, vecJ, matJ3, vecC, mat43, Model, Saved, J, K, shape, hinges_only, box)."""
     dtype, vec3, vec4, mat33, vecJ, matJ3, vecC, mat43 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3, t.vecC, t.mat43
     Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
+    BOX = t.box  # the convex object is an axis-aligned box (Model.obj_box_center / obj_box_half)
 
     @wp.func
     def softplus(x: dtype, beta: dtype):
@@ -83,8 +84,13 @@ def build_contact(t) -> types.SimpleNamespace:
         n = vec3(gx, gy, gz) + (g - gc)  # outside the grid: point away from it
         return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
-    @wp.func
+    @wp.func(inline=True)  # out of line, each call copied the Model struct
     def polytope_max(m: Model, p: vec3):
+        """The largest face-plane distance n_k . p - d_k of the convex object at p (object frame)."""
+        if wp.static(BOX):
+            d = p - m.obj_box_center
+            return wp.max(wp.max(wp.abs(d[0]) - m.obj_box_half[0], wp.abs(d[1]) - m.obj_box_half[1]),
+                          wp.abs(d[2]) - m.obj_box_half[2])
         hi = dtype(-1e9)
         for k in range(K):
             pl = m.planes[k]
@@ -384,17 +390,24 @@ def build_contact(t) -> types.SimpleNamespace:
         return
 
     @wp.func(inline=True)
-    def link_near(m: Model, x: vec3, i: int, xo: vec3):
+    def link_near(m: Model, x: vec3, i: int, xo: vec3, Ro: mat33):
         """1 when some sample sphere of link i (origin x) may pass :func:`sphere_near`, else 0: a sphere's
         centre is within ``link_reach - radius`` of the link origin, so a link origin farther than the
-        object's bound + the link's reach + the cutoff band has none near. Skips the per-sphere tests of the
-        links far from the object (most of them). A branch condition: empty adjoint."""
-        if wp.length(x - xo) < m.obj_bound + m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta:
+        object's bound + the link's reach + the cutoff band has none near; for a convex polytope, neither
+        has a link origin above a face plane by more than the link's reach + the band (a face distance
+        changes by at most the distance moved). Skips the per-sphere tests of the links far from the object
+        (most of them). A branch condition: empty adjoint."""
+        reach = m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta
+        if wp.length(x - xo) < m.obj_bound + reach:
+            if wp.static(shape == SHAPE_CONVEX):
+                if polytope_max(m, wp.transpose(Ro) * (x - xo)) < reach:
+                    return 1
+                return 0
             return 1
         return 0
 
     @wp.func_grad(link_near)
-    def adj_link_near(m: Model, x: vec3, i: int, xo: vec3, adj_ret: int):
+    def adj_link_near(m: Model, x: vec3, i: int, xo: vec3, Ro: mat33, adj_ret: int):
         return
 
     return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,

@@ -49,7 +49,7 @@ P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
 @functools.lru_cache(maxsize=None)
 def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int,
                   hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0, base_boxes: int = 0,
-                  object_limited: bool = False):
+                  object_limited: bool = False, box_object: bool = False):
     """Return a namespace with the struct type and kernels specialised for one scene structure.
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
@@ -57,7 +57,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ``palm_points``: palm collision boxes and object surface samples (palm_kernels.py; free objects only);
     with none, the palm's fields and code are left out entirely. ``base_boxes``: static
     collision boxes of the object's base (base_kernels.py); 0 compiles the base contact out.
-    ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out)."""
+    ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out).
+    ``box_object``: the convex object's faces are the six of an axis-aligned box (object frame), so the
+    largest face distance is ``max(|p - c| - h)`` (exact; three planes' work instead of six)."""
     F, J, P, K = num_fingers, joints, points, planes
     OBJ_HINGE = object_kind == OBJECT_HINGE
     PALM = palm_boxes > 0 and palm_points > 0 and not OBJ_HINGE
@@ -68,6 +70,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     HINGES_ONLY = bool(hinges_only)
     NBASE = int(base_boxes)
     OBJ_LIMITED = bool(object_limited) and OBJ_HINGE
+    BOX = bool(box_object)
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -116,6 +119,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             obj_upper: dtype
             obj_limit_ke: dtype
         planes: wp.array(dtype=vec4)
+        if BOX:  # the convex object is an axis-aligned box: its centre and half extents (object frame, m)
+            obj_box_center: vec3
+            obj_box_half: vec3
         sdf: wp.array3d(dtype=dtype)  # signed distance grid for non-convex meshes
         sdf_origin: vec3
         sdf_cell: dtype
@@ -157,7 +163,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     contact = build_contact(types.SimpleNamespace(
         dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, mat43=mat43,
-        Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY))
+        Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY, box=BOX))
     unit_j, point_jacobian = contact.unit_j, contact.point_jacobian
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
     chain = build_chain(types.SimpleNamespace(
@@ -177,9 +183,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     if NBASE > 0:  # built only when used: warp resolves every function a kernel names, even in a static branch
         base = build_base(types.SimpleNamespace(
             dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
-            Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force, unit_j=unit_j,
-            fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, smooth_box=contact.smooth_box))
+            Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force,
+            joint_forces=joint_forces, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, smooth_box=contact.smooth_box))
     link_base_contacts = base.link_base_contacts if NBASE > 0 else None
+    link_near_base = base.link_near_base if NBASE > 0 else None
 
     @wp.func
     def limit_ramp(x: dtype):
@@ -295,7 +302,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             MB = MB + Mb
             # contact of this link's sample spheres: a distance test each (skipped for the whole link when
             # none can reach the object), the work only near the object
-            if link_near(m, x, i, xo) != 0:
+            if link_near(m, x, i, xo, Ro) != 0:
                 for sp in range(P):
                     pi = i * P + sp
                     if sphere_near(m, x, R, pi, xo, Ro) != 0:
@@ -309,9 +316,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # contact with the object's static base: joint forces on the finger, the normal force counts
             # in the summed contact force (no wrench: the base does not move)
             if wp.static(NBASE > 0):
-                gen_b, fn_b = link_base_contacts(m, x, R, i, f * J, A, O, qdf, saved, ro)
-                gen = gen + gen_b
-                cforce = cforce + fn_b
+                if link_near_base(m, x, i) != 0:
+                    gen_b, fn_b = link_base_contacts(m, x, R, i, f * J, A, O, qdf, saved, ro)
+                    gen = gen + gen_b
+                    cforce = cforce + fn_b
         f_obj = -vec3(contacts[0], contacts[1], contacts[2])
         cforce = cforce + contacts[6]
         gen = gen + joint_forces(contacts)

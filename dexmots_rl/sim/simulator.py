@@ -75,6 +75,26 @@ def _wp_dtype(dtype: torch.dtype):
 
 
 
+def _box_of_planes(planes) -> tuple[np.ndarray, np.ndarray] | None:
+    """(centre, half extents) when the face planes [K, 4] (n . p = d) are the six faces of an axis-aligned
+    box, else None."""
+    planes = np.asarray(planes, dtype=np.float64).reshape(-1, 4)
+    if len(planes) != 6:
+        return None
+    lo, hi = np.full(3, np.nan), np.full(3, np.nan)
+    for n, d in zip(planes[:, :3], planes[:, 3]):
+        axis = int(np.argmax(np.abs(n)))
+        if not np.allclose(np.abs(n), np.eye(3)[axis], atol=1e-12):
+            return None
+        if n[axis] > 0:
+            hi[axis] = d
+        else:
+            lo[axis] = -d
+    if np.isnan(lo).any() or np.isnan(hi).any() or (hi <= lo).any():
+        return None
+    return 0.5 * (hi + lo), 0.5 * (hi - lo)
+
+
 def check_device(device) -> torch.device:
     """``torch.device(device)``, or a ``ValueError`` naming it when it is a GPU this machine lacks (warp
     would fail later with an ``IndexError`` deep in its device table)."""
@@ -153,6 +173,7 @@ class Simulator:
               else ()),
             base_boxes=scene.num_base_boxes,
             object_limited=scene.object_limited,
+            box_object=_box_of_planes(scene.object_planes) is not None and scene.object_shape == 0,
         )
         self.model = self._make_model()
 
@@ -193,6 +214,9 @@ class Simulator:
             m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
+        box = _box_of_planes(s.object_planes)
+        if box is not None and s.object_shape == 0:
+            m.obj_box_center, m.obj_box_half = k.vec3(*box[0]), k.vec3(*box[1])
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
