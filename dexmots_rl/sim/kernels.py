@@ -212,6 +212,18 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         s = wp.sin(t)
         return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
 
+    @wp.func_grad(axis_angle)
+    def adj_axis_angle(a: vec3, t: dtype, adj_ret: mat33):
+        # hand-written: warp's generated adjoint differentiates the identity, skew and outer matrices
+        # entry by entry; this is R = c I + s [a]x + (1 - c) a a^T contracted with adj_ret directly
+        c = wp.cos(t)
+        s = wp.sin(t)
+        G = adj_ret
+        v = vec3(G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1])  # <G, [u]x> = v . u
+        aGa = wp.dot(a, G * a)
+        wp.adjoint[t] += -s * (G[0, 0] + G[1, 1] + G[2, 2]) + c * wp.dot(v, a) + s * aGa
+        wp.adjoint[a] += s * v + (dtype(1.0) - c) * ((G + wp.transpose(G)) * a)
+
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
         # w: the row of q/qd holding this world's state
