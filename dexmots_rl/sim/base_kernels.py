@@ -96,8 +96,8 @@ def build_base(t) -> types.SimpleNamespace:
     def base_contact(m: Model, p: vec3, rad: dtype, b: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,
                      saved: Saved, row: int, slot: int):
         """Penalty contact of a finger sphere (centre p, radius rad, world frame) with the static box b;
-        packed result as ``point_contact``'s (force on the finger, contact point, normal force, joint
-        forces)."""
+        packed result as ``contact_force``'s (force on the finger, its torque about the box centre, normal
+        force, joint forces)."""
         Rb = fixed_mat33(m.box_rot, b)
         cb = fixed_vec3(m.box_pos, b)
         sd = box_sdf(m, b, wp.transpose(Rb) * (p - cb))

@@ -240,7 +240,10 @@ def build_contact(t) -> types.SimpleNamespace:
     def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
                       A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
         """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
-        (object frame) are ``sd``; packed result as :func:`point_contact`'s."""
+        (object frame) are ``sd``. Returns, packed in one vector: the force on the finger, its torque
+        about xo ((contact point - xo) x force: the results of several contacts sum to their total force
+        and torque in one vector addition), the normal force magnitude and the generalized force on the
+        finger's joints."""
         phi = rad - sd[0]
         fc = vec3()
         fn = dtype(0.0)
@@ -263,10 +266,11 @@ def build_contact(t) -> types.SimpleNamespace:
                 slope = dtype(1.0) / (dtype(1.0) + wp.exp(-m.beta * phi))  # softplus' = sigmoid
                 saved.law[row, slot] = mat43(n[0], n[1], n[2], cp[0], cp[1], cp[2], v_rel[0], v_rel[1], v_rel[2],
                                              sp, slope, den)
+        tq = wp.cross(cp - xo, fc)
         res = vecC()
         for c in range(3):
             res[c] = fc[c]
-            res[3 + c] = cp[c]
+            res[3 + c] = tq[c]
         res[6] = fn
         for j in range(J):
             res[7 + j] = gen[j]
@@ -285,7 +289,7 @@ def build_contact(t) -> types.SimpleNamespace:
         # differentiated it op by op): the forward's intermediates (saved), walked back.
         # Model parameters (and the sphere radius) are constants: no adjoint.
         a_fc = vec3(adj_ret[0], adj_ret[1], adj_ret[2])
-        a_cp = vec3(adj_ret[3], adj_ret[4], adj_ret[5])
+        a_tq = vec3(adj_ret[3], adj_ret[4], adj_ret[5])
         a_fn = adj_ret[6]
         phi = rad - sd[0]
         if phi > -dtype(CONTACT_CUTOFF) / m.beta:
@@ -305,6 +309,10 @@ def build_contact(t) -> types.SimpleNamespace:
             vt = v_rel - vn * n
             c = -m.mu / den
             fc = fn * n + c * fn * vt
+            # tq = r x fc
+            a_fc = a_fc + wp.cross(a_tq, r)
+            a_cp = wp.cross(fc, a_tq)
+            wp.adjoint[xo] += -a_cp
             a_gen = vecJ()
             for j in range(J):
                 a_gen[j] = adj_ret[7 + j]
@@ -344,16 +352,15 @@ def build_contact(t) -> types.SimpleNamespace:
             wp.adjoint[Ro] += wp.outer(a_n, n_o)
             a_no = wp.transpose(Ro) * a_n
             wp.adjoint[sd] += vec4(-a_phi, a_no[0], a_no[1], a_no[2])
-        else:
-            wp.adjoint[p] += a_cp  # out of the band: the result is (0, p, 0, 0)
+        # out of the band the result is zero: no adjoint
 
     @wp.func
     def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
                       A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
         """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
 
-        Returns, packed in one vector: the force on the finger, the contact point, the normal force
-        magnitude and the generalized force on the finger's joints.
+        Returns :func:`contact_force`'s packed result: the force on the finger, its torque about xo, the
+        normal force magnitude and the generalized force on the finger's joints.
         """
         sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
         if saved.sdf.shape[0] > 0:

@@ -154,7 +154,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         columns: finger, or sample sphere). Arrays with no rows when the step is not taped."""
 
         finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
-        contact: wp.array2d(dtype=vecC)  # point_contact: force, point, normal force, joint forces
+        contact: wp.array2d(dtype=vecC)  # point_contact / base_contact results (see their docstrings)
         # (contact and law: with an object base, base_kernels' slots follow the sample spheres')
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
@@ -262,8 +262,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         A function rather than inline code keeps each compiled frame small: warp value-initialises every
         local of a frame on entry. ``saved*`` (rows: ``ro``; empty when untaped): results kept for the
         reverse pass."""
-        contacts = vecC()  # the object contacts' results summed: force, (unused), normal force, joint forces
-        t_obj = vec3()
+        contacts = vecC()  # the object contacts' results summed: force, torque about xo, normal force, joint forces
         cforce = dtype(0.0)  # normal forces of the base contacts
         R = fixed_mat33(m.base_rot, f)
         x = fixed_vec3(m.base_pos, f)
@@ -324,7 +323,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                             saved.contact[ro, pi] = res
                         # summed as whole vectors: a per-component sum unrolls J adjoint updates per sphere
                         contacts = contacts + res
-                        t_obj = t_obj - wp.cross(vec3(res[3], res[4], res[5]) - xo, vec3(res[0], res[1], res[2]))
             # contact with the object's static base: joint forces on the finger, the normal force counts
             # in the summed contact force (no wrench: the base does not move)
             if wp.static(NBASE > 0):
@@ -333,6 +331,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                     gen = gen + gen_b
                     cforce = cforce + fn_b
         f_obj = -vec3(contacts[0], contacts[1], contacts[2])
+        t_obj = -vec3(contacts[3], contacts[4], contacts[5])
         cforce = cforce + contacts[6]
         gen = gen + joint_forces(contacts)
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
