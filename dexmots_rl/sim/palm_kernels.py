@@ -82,6 +82,24 @@ def build_palm(t) -> types.SimpleNamespace:
     def adj_palm_near(m: Model, b: int, xo: vec3, adj_ret: int):
         return
 
+    @wp.func(inline=True)
+    def palm_sample_near(m: Model, b: int, p: vec3, rad: dtype):
+        """1 when the object sample sphere (centre p, radius rad) may touch palm box b, else 0: its largest
+        face distance to the box is below the radius + the law's cutoff band. The smooth distance is never
+        below the largest face distance, so a sample this test skips gets exactly zero force anyway; the
+        test only skips the work (the smooth distance's six exponentials). A branch condition: empty
+        adjoint."""
+        q = wp.transpose(m.palm_rot[b]) * (p - m.palm_pos[b])
+        h = m.palm_half[b]
+        g = wp.max(wp.max(wp.abs(q[0]) - h[0], wp.abs(q[1]) - h[1]), wp.abs(q[2]) - h[2])
+        if g < rad + dtype(CONTACT_CUTOFF) / m.palm_beta:
+            return 1
+        return 0
+
+    @wp.func_grad(palm_sample_near)
+    def adj_palm_sample_near(m: Model, b: int, p: vec3, rad: dtype, adj_ret: int):
+        return
+
     @wp.func
     def palm_wrench(m: Model, xo: vec3, Ro: mat33, vo: vec3, wo: vec3):
         """Net palm force on the object and its torque about the object origin xo (world frame)."""
@@ -91,9 +109,11 @@ def build_palm(t) -> types.SimpleNamespace:
             if palm_near(m, b, xo) != 0:
                 for s in range(NS):
                     p = xo + Ro * fixed_vec3(m.obj_point_pos, s)
-                    fc, cp = palm_point(m, b, p, fixed(m.obj_point_radius, s), xo, vo, wo)
-                    f = f + fc
-                    tq = tq + wp.cross(cp - xo, fc)
+                    rad = fixed(m.obj_point_radius, s)
+                    if palm_sample_near(m, b, p, rad) != 0:
+                        fc, cp = palm_point(m, b, p, rad, xo, vo, wo)
+                        f = f + fc
+                        tq = tq + wp.cross(cp - xo, fc)
         return f, tq
 
     return types.SimpleNamespace(box_sdf=box_sdf, palm_point=palm_point, palm_wrench=palm_wrench)
