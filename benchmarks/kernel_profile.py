@@ -1,6 +1,7 @@
-"""Where the forward substep kernel spends its time, by warp function and by Python statement of the kernel.
+"""Where the substep kernel spends its time, by warp function and by Python statement of the kernel.
 
     python benchmarks/kernel_profile.py --task allegro_rotate --num-envs 256 --seconds 15
+    python benchmarks/kernel_profile.py --task allegro_rotate --reverse --addresses 30   # the reverse pass
 
 Needs Linux ``perf`` (``apt-get install linux-perf``) and binutils; runs on CPU with one simulator thread.
 
@@ -15,7 +16,10 @@ mappings, samples the forward loop with ``perf record -p``, and maps each sample
 those calls are not attributed to a statement.
 
 Prints the shares by function, by statement and by library, and the hottest instructions (``rep movs``
-there are struct arguments copied by value into functions clang did not inline).
+there are struct arguments copied by value into functions clang did not inline). Code between a function's
+header and its first statement is reported as "(entry: locals initialised)": warp value-initialises every
+local (and, in an adjoint, every adjoint variable) of a frame on entry. ``--reverse`` samples the reverse
+pass of one taped step (the adjoint launches) instead of the forward step.
 """
 
 from __future__ import annotations
