@@ -84,13 +84,17 @@ def build_contact(t) -> types.SimpleNamespace:
         n = vec3(gx, gy, gz) + (g - gc)  # outside the grid: point away from it
         return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
+    @wp.func(inline=True)
+    def box_face_max(h: vec3, q: vec3):
+        """The largest face distance max_i(|q_i| - h_i) of point q (box frame) to the box of half sizes h:
+        a lower bound of the smooth distance, used by the culling tests of the object, palm and base boxes."""
+        return wp.max(wp.max(wp.abs(q[0]) - h[0], wp.abs(q[1]) - h[1]), wp.abs(q[2]) - h[2])
+
     @wp.func(inline=True)  # out of line, each call copied the Model struct
     def polytope_max(m: Model, p: vec3):
         """The largest face-plane distance n_k . p - d_k of the convex object at p (object frame)."""
         if wp.static(BOX):
-            d = p - m.obj_box_center
-            return wp.max(wp.max(wp.abs(d[0]) - m.obj_box_half[0], wp.abs(d[1]) - m.obj_box_half[1]),
-                          wp.abs(d[2]) - m.obj_box_half[2])
+            return box_face_max(m.obj_box_half, p - m.obj_box_center)
         hi = dtype(-1e9)
         for k in range(K):
             pl = m.planes[k]
@@ -420,4 +424,5 @@ def build_contact(t) -> types.SimpleNamespace:
     return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,
                                  point_jacobian_vjp=point_jacobian_vjp,
                                  object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
-                                 sphere_near=sphere_near, link_near=link_near, smooth_box=smooth_box)
+                                 sphere_near=sphere_near, link_near=link_near, smooth_box=smooth_box,
+                                 box_face_max=box_face_max)

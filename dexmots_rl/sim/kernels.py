@@ -177,7 +177,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     if PALM:
         palm = build_palm(types.SimpleNamespace(
             dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, Model=Model, NB=NB, NS=NS, fixed_vec3=fixed_vec3,
-            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus, smooth_box=contact.smooth_box))
+            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus, smooth_box=contact.smooth_box,
+            box_face_max=contact.box_face_max))
     palm_wrench = palm.palm_wrench if PALM else None
     base = None
     if NBASE > 0:  # built only when used: warp resolves every function a kernel names, even in a static branch

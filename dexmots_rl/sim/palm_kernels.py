@@ -31,11 +31,11 @@ __all__ = ["build_palm"]
 def build_palm(t) -> types.SimpleNamespace:
     """The palm-contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3,
     vec4, mat33, Model, NB (palm boxes), NS (object samples), fixed_vec3, fixed_mat33, fixed, softplus,
-    smooth_box)."""
+    smooth_box, box_face_max)."""
     dtype, vec3, vec4, mat33, Model = t.dtype, t.vec3, t.vec4, t.mat33, t.Model
     NB, NS = t.NB, t.NS
     fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
-    smooth_box = t.smooth_box
+    smooth_box, box_face_max = t.smooth_box, t.box_face_max
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
@@ -90,9 +90,7 @@ def build_palm(t) -> types.SimpleNamespace:
         test only skips the work (the smooth distance's six exponentials). A branch condition: empty
         adjoint."""
         q = wp.transpose(m.palm_rot[b]) * (p - m.palm_pos[b])
-        h = m.palm_half[b]
-        g = wp.max(wp.max(wp.abs(q[0]) - h[0], wp.abs(q[1]) - h[1]), wp.abs(q[2]) - h[2])
-        if g < rad + dtype(CONTACT_CUTOFF) / m.palm_beta:
+        if box_face_max(m.palm_half[b], q) < rad + dtype(CONTACT_CUTOFF) / m.palm_beta:
             return 1
         return 0
 

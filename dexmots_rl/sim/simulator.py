@@ -160,6 +160,8 @@ class Simulator:
         self.nv = scene.num_hand_dofs + scene.object_nv
         self.nu = scene.num_hand_dofs
         self.num_bodies = scene.num_hand_dofs + 1
+        # (centre, half extents) of a convex object that is an axis-aligned box (kernels' box_object), else None
+        self._object_box = _box_of_planes(scene.object_planes) if scene.object_shape == 0 else None
         self.kernels = build_kernels(
             _wp_dtype(dtype),
             scene.num_fingers,
@@ -173,7 +175,7 @@ class Simulator:
               else ()),
             base_boxes=scene.num_base_boxes,
             object_limited=scene.object_limited,
-            box_object=_box_of_planes(scene.object_planes) is not None and scene.object_shape == 0,
+            box_object=self._object_box is not None,
         )
         self.model = self._make_model()
 
@@ -214,9 +216,8 @@ class Simulator:
             m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
-        box = _box_of_planes(s.object_planes)
-        if box is not None and s.object_shape == 0:
-            m.obj_box_center, m.obj_box_half = k.vec3(*box[0]), k.vec3(*box[1])
+        if self._object_box is not None:
+            m.obj_box_center, m.obj_box_half = (k.vec3(*v) for v in self._object_box)
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
