@@ -57,40 +57,6 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path):
     assert split == straight
 
 
-def test_critic_fit_in_the_background_gives_the_inline_run(tmp_path):
-    # the critic's fit overlaps the next rollout by default; inline it must give the very same run
-    train(_cfg(tmp_path / "overlap", "algo.iterations=3"))
-    train(_cfg(tmp_path / "inline", "algo.iterations=3", "algo.critic_overlap=false"))
-    overlap, inline = _rows(tmp_path / "overlap"), _rows(tmp_path / "inline")
-    assert [r["iteration"] for r in overlap] == [1, 2, 3] and all("loss_critic" in r for r in overlap)
-    assert overlap == inline
-    a, b = (load_checkpoint(tmp_path / name / "checkpoints" / "last.pt")["modules"]["critic"]
-            for name in ("overlap", "inline"))
-    for key in a:
-        torch.testing.assert_close(a[key], b[key], rtol=0, atol=0)
-
-
-def test_a_rollback_discards_the_rollout_of_the_replaced_policy(tmp_path, monkeypatch):
-    import dexmots_rl.algorithms.shac as shac
-
-    class RollBackOnce(shac.BestPolicy):  # a collapse seen at the end of iteration 2
-        def observe(self, success):
-            super().observe(success)
-            if self._seen == 2:
-                self.restore()
-                self.rollbacks += 1
-                return True
-            return False
-
-    monkeypatch.setattr(shac, "BestPolicy", RollBackOnce)
-    result = train(_cfg(tmp_path / "run", "algo.iterations=3"))
-    rows = _rows(tmp_path / "run")
-    assert [r["iteration"] for r in rows] == [1, 2, 3] and [r["rollbacks"] for r in rows] == [0, 1, 1]
-    # three updates, four rollouts: the one made by the replaced policy counts as env steps, trains nothing
-    assert result["iterations"] == 3 and result["env_steps"] == 4 * 4 * 4
-    assert rows[-1]["env_steps"] == 4 * 4 * 4
-
-
 def test_checkpoint_round_trip_and_eval(tmp_path):
     train(_cfg(tmp_path / "run", "algo.iterations=1"))
     actor, data = policy_from_checkpoint(tmp_path / "run")

@@ -13,15 +13,12 @@ import fcntl
 import logging
 import os
 import shutil
-import signal
-import threading
 from pathlib import Path
 
 from ..atomic import atomic_write, clean_stale_temps
 from .checkpoint import CheckpointError
 
-__all__ = ["RUN_FILES", "RunDirLock", "StopOnSignal", "holds_run", "prepare_fresh_run_dir", "truncate_logs",
-           "resume_config"]
+__all__ = ["RUN_FILES", "RunDirLock", "holds_run", "prepare_fresh_run_dir", "truncate_logs", "resume_config"]
 
 log = logging.getLogger(__name__)
 
@@ -172,27 +169,3 @@ def resume_config(cfg, checkpoint: dict, source, overrides: list[str] | None):
         if overrides is None or key in _override_keys(overrides):
             OmegaConf.update(merged, key, OmegaConf.select(cfg, key), merge=False)
     return merged
-
-
-class StopOnSignal:
-    """SIGINT/SIGTERM while training: finish the iteration, checkpoint, return (no traceback); a second
-    signal interrupts at once. Only the main thread can install handlers; elsewhere this is a no-op."""
-
-    def __init__(self):
-        self.signal, self._old = None, {}
-
-    def _handle(self, signum, frame):
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signal.Signals(signum).name
-        log.warning("%s: stopping after this iteration with a checkpoint (again to abort)", self.signal)
-
-    def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, handler in self._old.items():
-            signal.signal(sig, handler)

@@ -11,18 +11,19 @@ huge; worlds whose gradient through the simulator dwarfs the median world's are 
 ``algo.adjoint_clip``; a policy-smoothness penalty's gradient is added after the clip, ``algo.smooth_*``,
 with its weight raised only while the share of capped adjoints is above ``algo.smooth_clip_target``) ->
 observation statistics updated outside the graph -> TD(lambda) targets with the target critic on the
-detached rollout -> critic minibatch iterations and the polyak update of the target critic, in a background
-thread while the next rollout is collected (``algo.critic_overlap``, :mod:`.critic_fit`; the same run as
-inline) -> the episodes continue from the rollout's last state (graph cut) -> once the critic is fitted, the
-iteration is logged and the best policy so far is kept, and restored after a collapse of training success
-(``algo.keep_best``, :mod:`.best_policy`; the rollout made meanwhile by the replaced policy is dropped). The run directory gets the
+detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the episodes
+continue from the rollout's last state (graph cut) -> the best policy so far is kept, and restored after a
+collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the
 resolved config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at
 the end, ``metrics.json`` with the final evaluation (:mod:`.evaluate`).
 """
 
 from __future__ import annotations
 
+import logging
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -40,14 +41,15 @@ from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_r
 from .best_policy import BestPolicy
 from .budget import RunBudget
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
-from .critic_fit import CriticFit
 from .distributed import Distributed
 from .evaluation import evaluate_policy, periodic_episodes
 from .networks import make_networks
-from .rundir import RunDirLock, StopOnSignal, prepare_fresh_run_dir, resume_config, truncate_logs
+from .rundir import RunDirLock, prepare_fresh_run_dir, resume_config, truncate_logs
 from .validation import validate_run_config
 
 __all__ = ["build", "train"]
+
+log = logging.getLogger(__name__)
 
 
 def build(cfg: DictConfig, rank: int = 0):
@@ -106,11 +108,35 @@ def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             prepare_fresh_run_dir(run_dir, bool(cfg.get("overwrite", False)))
         elif dist.is_main:
             truncate_logs(run_dir, int(start["iteration"]))
-        with StopOnSignal() as stop:
+        with _StopOnSignal() as stop:
             return _train(cfg, run_dir, start, dist, stop)
     finally:
         if lock is not None:
             lock.close()
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM while training: finish the iteration, checkpoint, return (no traceback); a second
+    signal interrupts at once. Only the main thread can install handlers; elsewhere this is a no-op."""
+
+    def __init__(self):
+        self.signal, self._old = None, {}
+
+    def _handle(self, signum, frame):
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signal.Signals(signum).name
+        log.warning("%s: stopping after this iteration with a checkpoint (again to abort)", self.signal)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
 
 
 def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
@@ -147,63 +173,17 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     stop_at = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
     budget, stopped_by = RunBudget.from_config(cfg), None
     interrupted = False
-    critic_rng = torch.Generator(device=cfg.device).manual_seed(cfg.seed + 1000 * dist.rank + 1)
-    if start is not None and "critic" in start["rng"]:
-        critic_rng.set_state(start["rng"]["critic"])
-
-    def fit_critic(job):  # 4. critic on the detached rollout, then the polyak update of its target
-        data, lr = job
-        for group in critic_opt.param_groups:
-            group["lr"] = lr
-        losses = loss.fit_critic(data, critic_opt, cfg.algo.critic_iterations, cfg.algo.critic_minibatches,
-                                 on_gradients=lambda: dist.average_gradients(critic.parameters()), generator=critic_rng)
-        updater.step()
-        return losses
-
-    critic_fit = CriticFit(fit_critic, background=cfg.algo.critic_overlap and not dist.active)
-    pending = None  # the last iteration's bookkeeping: it waits for that iteration's critic fit
-
-    def finish(pending) -> bool:
-        """Log, keep-best, checkpoint and evaluate an iteration once its critic is fitted; True on a rollback."""
-        nonlocal t_start
-        row = pending["row"]
-        critic_losses = critic_fit.wait().tolist()
-        row["loss_critic"] = sum(critic_losses) / max(len(critic_losses), 1)
-        rolled_back = False
-        if best is not None:  # every rank sees the same (summed) success, so all roll back together
-            rolled_back = best.observe(row["episode_success"])
-            row["rollbacks"] = best.rollbacks
-        if dist.is_main:
-            _log_row(logger, run_dir, row)
-            if pending["state"] is not None:  # the critic's random stream as its fit left it
-                pending["state"]["rng"]["critic"] = critic_rng.get_state()
-                _save(run_dir, cfg, pending["counters"], modules, optimizers, best, pending["state"])
-            if pending["evaluate"]:
-                t_eval = time.perf_counter()
-                ev = evaluate_policy(actor, cfg.task, periodic_episodes(cfg.eval), cfg.eval.seed, cfg.device,
-                                     **_rec(cfg, run_dir))
-                _log_row(logger, run_dir, {"iteration": row["iteration"],
-                                           **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
-                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
-        return rolled_back
-
     while counters["iteration"] < stop_at and not interrupted and stopped_by is None:
         it = counters["iteration"]
         frac = 1.0 - budget.progress(counters, it / iterations) if cfg.algo.lr_decay == "linear" else 1.0
-        for group in actor_opt.param_groups:
-            group["lr"] = cfg.algo.actor_lr * frac
+        for opt, lr in ((actor_opt, cfg.algo.actor_lr), (critic_opt, cfg.algo.critic_lr)):
+            for group in opt.param_groups:
+                group["lr"] = lr * frac
         horizon = ahac.horizon if ahac is not None else cfg.algo.horizon
 
-        # 1. differentiable rollout under the sampled policy (normaliser frozen: its buffers are constants),
-        # while the last iteration's critic fit runs (with algo.critic_overlap); then that iteration's bookkeeping
+        # 1. differentiable rollout under the sampled policy (normaliser frozen: its buffers are constants)
         with set_exploration_type(ExplorationType.RANDOM):
             rollout = env.rollout(horizon, actor, auto_reset=False, break_when_any_done=False, tensordict=td)
-        if pending is not None:
-            rolled_back, pending = finish(pending), None
-            if rolled_back:  # this rollout came from the policy just replaced: the iteration starts again
-                counters["env_steps"] += rollout.numel() * dist.world_size
-                td = next_rollout_start(env, rollout)
-                continue
         if ahac is not None:
             ahac.update_from_rollout(rollout)
             if cfg.algo.truncate:
@@ -234,9 +214,12 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
                 dist.average_gradients(actor.parameters())
             actor_opt.step()
 
-        # 3. observation statistics, outside the graph; 4. the critic's fit starts (it overlaps the next rollout)
+        # 3. observation statistics, outside the graph; 4. critic on the detached rollout
         dist.update_norm(norm, rollout.get("observation"))
-        critic_fit.start((loss.critic_targets(rollout).reshape(-1), cfg.algo.critic_lr * frac))
+        data = loss.critic_targets(rollout).reshape(-1)
+        critic_losses = loss.fit_critic(data, critic_opt, cfg.algo.critic_iterations, cfg.algo.critic_minibatches,
+                                        on_gradients=lambda: dist.average_gradients(critic.parameters())).tolist()
+        updater.step()
         td = next_rollout_start(env, rollout)
 
         # 5. bookkeeping; every rank sees a signal one rank got, so all stop at the same iteration
@@ -248,7 +231,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         over = budget.reached(counters) if dist.is_main else None
         if dist.sum(torch.tensor([float(over is not None)])) > 0:
             stopped_by = over or "wall_clock_s"
-        row = _iteration_metrics(rollout, counters, loss_actor, grad_norm, horizon, dist)
+        row = _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist)
         row["clip_share"] = share
         if ahac is not None:
             row["ahac_contact"] = float(ahac.last_contact)  # the statistic AHAC's dual compares with C-bar
@@ -257,19 +240,24 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         if smooth is not None:
             row["smooth_temporal"] = float(smooth["loss_smooth_temporal"].detach())
             row["smooth_spatial"] = float(smooth["loss_smooth_spatial"].detach())
+        if best is not None:  # every rank sees the same (summed) success, so all roll back together
+            best.observe(row["episode_success"])
+            row["rollbacks"] = best.rollbacks
         bar.update(1)
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
-        last = counters["iteration"] == stop_at or stopped_by is not None
-        save = dist.is_main and (last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0)
-        pending = {"row": row, "counters": dict(counters),
-                   # the checkpoint holds this iteration's end (env state, random streams), taken before the
-                   # next rollout moves them on
-                   "state": _run_state(td, env) if save else None,
-                   "evaluate": bool(cfg.eval.every) and counters["iteration"] % cfg.eval.every == 0 and not last}
-    if pending is not None:
-        finish(pending)
-    critic_fit.close()
+        if dist.is_main:
+            _log_row(logger, run_dir, row)
+            last = counters["iteration"] == stop_at or stopped_by is not None
+            if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
+                _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
+            if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
+                t_eval = time.perf_counter()
+                ev = evaluate_policy(actor, cfg.task, periodic_episodes(cfg.eval), cfg.eval.seed, cfg.device,
+                                     **_rec(cfg, run_dir))
+                _log_row(logger, run_dir, {"iteration": counters["iteration"],
+                                           **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
+                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
     bar.close()
     result = {}
     if interrupted:
@@ -277,7 +265,7 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
     if dist.is_main and (counters["iteration"] == iterations or stopped_by is not None) and not interrupted:
         final_policy = _final_policy(best)
         if final_policy["source"] == "best":  # the checkpoint holds the policy that is evaluated
-            _save(run_dir, cfg, counters, modules, optimizers, best, _run_state(td, env, critic_rng))
+            _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
         ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
@@ -326,8 +314,7 @@ def _rec(cfg, run_dir: Path) -> dict:
     return {"record": run_dir / "eval.mcap", "live": True} if cfg.eval.record else {}
 
 
-def _iteration_metrics(rollout, counters, loss_actor, grad_norm, horizon, dist) -> dict:
-    """One iteration's metrics row (its ``loss_critic`` is added once the critic's fit is done)."""
+def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist) -> dict:
     nxt = rollout.get("next")
     done = nxt.get("done").squeeze(-1)
     success = nxt.get("success").squeeze(-1)
@@ -339,6 +326,7 @@ def _iteration_metrics(rollout, counters, loss_actor, grad_norm, horizon, dist) 
         "reward": float(dist.mean(nxt.get("reward").detach().mean())),
         "episode_success": float(finished[1] / finished[0]) if finished[0] > 0 else float("nan"),
         "loss_actor": float(loss_actor.detach()),
+        "loss_critic": sum(critic_losses) / max(len(critic_losses), 1),
         "grad_norm": grad_norm,
         "horizon": horizon,
         "skipped_updates": counters["skipped_updates"],
@@ -368,16 +356,7 @@ def _log_row(logger, run_dir: Path, row: dict) -> None:
                 logger.log_scalar(key, value, step=row["iteration"])
 
 
-def _run_state(td, env, critic_rng: torch.Generator | None = None) -> dict:
-    """The env state and random streams a checkpoint resumes from (the critic's stream once its fit is done)."""
-    rng = {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()}
-    if critic_rng is not None:
-        rng["critic"] = critic_rng.get_state()
-    return {"env_state": td.detach().to_dict(), "rng": rng}
-
-
-def _save(run_dir, cfg, counters, modules, optimizers, best, state: dict) -> None:
-    """``state``: :func:`_run_state`'s (the env state and random streams)."""
+def _save(run_dir, cfg, counters, modules, optimizers, td, env, best=None) -> None:
     save_checkpoint(run_dir / "checkpoints" / "last.pt", {
         "task": cfg.task.name,
         "algo": cfg.algo.name,
@@ -386,6 +365,7 @@ def _save(run_dir, cfg, counters, modules, optimizers, best, state: dict) -> Non
         "counters": dict(counters),
         "modules": {name: m.state_dict() for name, m in modules.items()},
         "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
-        **state,
+        "env_state": td.detach().to_dict(),
+        "rng": {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
         "best": best.state_dict() if best is not None else None,
     })

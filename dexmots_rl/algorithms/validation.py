@@ -39,7 +39,6 @@ _ALGO_RULES = {
     "lr_decay": (lambda v: v in ("linear", "constant"), "'linear' or 'constant'"),
     "critic_iterations": (lambda v: _integer(v) and v > 0, "a positive integer"),
     "critic_minibatches": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "critic_overlap": (lambda v: isinstance(v, bool), "true or false"),
     "target_alpha": (lambda v: _number(v) and 0 <= v <= 1, "in [0, 1]"),
     "grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),
     "skip_grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),

@@ -322,11 +322,11 @@ class SHACLoss(LossModule):
         return self._reduce_loss(loss, tensordict)
 
     def fit_critic(self, data: TensorDictBase, optimizer: torch.optim.Optimizer, iterations: int,
-                   minibatches: int, on_gradients=None, generator: torch.Generator | None = None) -> torch.Tensor:
+                   minibatches: int, on_gradients=None) -> torch.Tensor:
         """Regress the critic onto ``data``'s targets: ``iterations`` passes, each over ``data`` shuffled by
-        ``torch.randperm`` (drawn from ``generator``, default torch's global one) and split into
-        ``minibatches`` (plus a remainder), one ``optimizer`` step per minibatch; ``on_gradients()`` runs
-        between backward and step (e.g. averaging across ranks). Returns the minibatch losses [steps].
+        ``torch.randperm`` and split into ``minibatches`` (plus a remainder), one ``optimizer`` step per
+        minibatch; ``on_gradients()`` runs between backward and step (e.g. averaging across ranks).
+        Returns the minibatch losses [steps].
 
         ``data``: flat [N] output of :meth:`critic_targets`. The result is the same as looping
         :meth:`critic_loss` over ``data[torch.randperm(N)].split(N // minibatches)`` (tested), but the
@@ -348,7 +348,7 @@ class SHACLoss(LossModule):
         losses = []
         with self.critic_network_params.to_module(self.critic_network):
             for _ in range(iterations):
-                for idx in torch.randperm(n, device=data.device, generator=generator).split(batch_size):
+                for idx in torch.randperm(n, device=data.device).split(batch_size):
                     optimizer.zero_grad()
                     value = module(*(x[idx] for x in inputs))
                     if isinstance(value, tuple):
