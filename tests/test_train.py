@@ -71,6 +71,9 @@ def test_checkpoint_round_trip_and_eval(tmp_path):
     assert all(0.2 <= g["low"] <= g["high"] <= 1.0 for g in groups)
     assert all(a["high"] <= b["low"] for a, b in zip(groups, groups[1:]))
     assert sum(g["success_rate"] for g in groups) / 4 == pytest.approx(ev["success_rate"])
+    goals = ev["success_by_goal"]  # quartiles of the signed goal angle: a one-direction policy shows as two halves
+    assert all(0.78 <= abs(g[end]) <= 1.58 for g in goals for end in ("low", "high"))
+    assert all(a["high"] <= b["low"] for a, b in zip(goals, goals[1:]))
     eval_main([str(tmp_path / "run"), "--episodes", "2"])
     assert json.loads((tmp_path / "run" / "eval.json").read_text())["episodes"] == 2
 

@@ -82,7 +82,8 @@ class OperateEnv(KnobTurnEnv):
     contact_params = HAND_CONTACT
     contact_regions: ClassVar[tuple[ContactRegion, ...]] = ()  # where the pre-grasps put the fingertips
     pregrasp_hint: ClassVar[tuple[float, ...]] = FLAT  # the pose the pre-grasp search starts from
-    breakdowns = {**KnobTurnEnv.breakdowns, "stiffness": ("sim", "params", "joint_stiffness")}
+    breakdowns = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping"),
+                  "stiffness": ("sim", "params", "joint_stiffness")}  # the goal is the same every episode
 
     def __init__(self, config: OperateConfig, **kwargs):
         super().__init__(config, **kwargs)
