@@ -77,3 +77,23 @@ def test_evaluation_breaks_success_down_by_the_goal_angle():
     assert [q["episodes"] for q in quartiles] == [2, 2, 2, 2]
     # the goal turns by q_z(a) q_x(b) with |a|, |b| <= 1 rad: at most 2 rad in all, sorted low to high
     assert 0.0 <= quartiles[0]["low"] <= quartiles[0]["high"] <= quartiles[3]["low"] <= quartiles[3]["high"] <= 2.0
+
+
+def test_the_original_codes_looser_test_ignores_z_and_passes_every_success_of_ours():
+    from dexmots_rl.algorithms.evaluation import evaluate_policy
+    from dexmots_rl.algorithms.networks import make_networks
+    from dexmots_rl.envs.tasks.allegro.repose import original_test
+
+    def turn(axis, angle):
+        q = torch.zeros(1, 7)
+        q[0, 3], q[0, 4 + axis] = math.cos(angle / 2), math.sin(angle / 2)
+        return q
+
+    goal = turn(0, 0.0)
+    assert bool(original_test(None, turn(2, 0.5), goal))  # 0.5 rad about z: ignored
+    assert bool(original_test(None, turn(0, 0.15), goal)) and not bool(original_test(None, turn(0, 0.25), goal))
+    task = {"name": "repose_cube", "max_episode_steps": 2}
+    env = make_env(task["name"], num_envs=1, differentiable=False, seed=0)
+    actor, _, _ = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1], (8,))
+    ev = evaluate_policy(actor, task, episodes=8, seed=0)
+    assert ev["success_rate"] <= ev["success_rate_original_test"] <= 1.0

@@ -53,6 +53,8 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     success = nxt.get("success").squeeze(-1)  # [N, T]
     final_error = base.goal_error(nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1])
     won = success[:, -1]
+    final_achieved, final_goal = nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1]
+    kept = ~nxt.get("terminated").squeeze(-1).any(-1)  # [N]: no termination (e.g. a dropped object)
     first = torch.where(success.any(-1), success.float().argmax(-1), torch.full_like(won, -1, dtype=torch.long))
     tts = (first[won] + 1).float() * base.sim.dt
     return {
@@ -61,6 +63,8 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         "mean_final_error": float(final_error.mean()),
         "mean_time_to_success_s": float(tts.mean()) if won.any() else float("nan"),
         "sim_failures": int(nxt.get(("info", "sim_failures"))[:, -1].sum()),
+        **{f"success_rate_{name}": float((test(base, final_achieved, final_goal) & kept).float().mean())
+           for name, test in base.extra_success.items()},
         # where the misses are, by the task's randomised parameters (e.g. the knob's friction)
         **{f"success_by_{name}": _success_by(_episode_values(base, rollout, key), won)
            for name, key in base.breakdowns.items()},

@@ -44,6 +44,9 @@ class DexEnv(EnvBase):
     # evaluation breakdowns: name -> key of a per-episode value, or a function (env, first-step TensorDict [N])
     # -> [N] values; dexmots-eval reports success by its quartiles
     breakdowns: dict = {}
+    # other success tests dexmots-eval reports as success_rate_<name> (e.g. an original code's looser test): name ->
+    # function (env, achieved_goal [N, G], goal [N, G]) -> [N] bool at the episode end; a terminated episode fails
+    extra_success: dict = {}
     bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
     contact_params = None  # the scene's ContactParams (None: the defaults, sized for the claw)
     plan_problem = None  # PlanProblem for dexmots-bench plan
