@@ -135,9 +135,16 @@ def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, si
 
     monkeypatch.setattr(shac, "_log_row", log_and_signal)
     run = tmp_path / "run"
-    result = train(_cfg(run, "algo.iterations=5", "checkpoint_every=100"))
+    def outer(signum, frame):  # the caller's own handler (the default one is SIG_IGN under `nohup ... &`)
+        raise AssertionError("the trainer's handler should have taken the signal")
+
+    previous = signal.signal(sig, outer)
+    try:
+        result = train(_cfg(run, "algo.iterations=5", "checkpoint_every=100"))
+        assert signal.getsignal(sig) is outer  # handlers restored
+    finally:
+        signal.signal(sig, previous)
     # the signal came after iteration 1's check (while logging it): iteration 2 is finished and saved
     assert result["interrupted"] == sig.name and result["iteration"] == 2
     assert load_checkpoint(run / "checkpoints" / "last.pt")["iteration"] == 2
-    assert signal.getsignal(sig) in (signal.default_int_handler, signal.SIG_DFL)  # handlers restored
     assert not (run / "metrics.json").exists()
