@@ -277,3 +277,40 @@ def test_cpu_threads_setting(monkeypatch):
     monkeypatch.setenv("DEXMOTS_CPU_THREADS", "zero")
     with pytest.raises(ValueError, match="DEXMOTS_CPU_THREADS"):
         world_blocks(256, cpu)
+
+
+def test_claw_in_contact_is_mirror_symmetric():
+    """The claw scene is symmetric about the xz plane: the left and right fingers swap with their joint angles
+    negated, and so does the knob's angle. A mirrored state driven by the mirrored torques stays the mirror of
+    the original, in contact, to the bit. So a policy that learns one turning direction only (docs/results.md,
+    session 14) is not favoured by the physics."""
+    from dexmots_rl.apps.bench_setup import bench_task
+    from dexmots_rl.envs import task_contact, task_scene
+    from dexmots_rl.sim import Control, Simulator
+
+    scene, poses = task_scene("screw_claw"), bench_task("screw_claw")
+    sim = Simulator(scene, 2, dtype=torch.float64, contact=task_contact("screw_claw"))
+    order = [2, 3, 0, 1, 4]  # right proximal, right distal, left proximal, left distal, knob
+
+    def mirror(x):
+        return -x[..., order]
+
+    g = torch.Generator().manual_seed(0)
+    q0 = torch.tensor(poses.touch_q, dtype=torch.float64)
+    q0[4] = 0.1
+    qd0 = 0.3 * torch.randn(5, generator=g, dtype=torch.float64)
+    q, qd = torch.stack([q0, mirror(q0)]), torch.stack([qd0, mirror(qd0)])
+    gear = torch.as_tensor(scene.actuator_gear, dtype=torch.float64)
+    close = torch.tensor([*poses.close_action, 0.0], dtype=torch.float64)
+    touched = 0.0
+    for _ in range(10):
+        a = close + torch.cat([0.3 * (2 * torch.rand(4, generator=g, dtype=torch.float64) - 1), torch.zeros(1)])
+        tau = (torch.stack([a, mirror(a)])[:, :4] * gear).contiguous()
+        zero = torch.zeros_like(tau)
+        out = sim.step(q, qd, Control(tau, zero, zero, zero), sim.default_params())
+        q, qd = out.joint_q, out.joint_qd
+        touched += float(out.contact_force[0])
+        torch.testing.assert_close(q[1], mirror(q[0]), rtol=0, atol=1e-12)
+        torch.testing.assert_close(qd[1], mirror(qd[0]), rtol=0, atol=1e-12)
+        torch.testing.assert_close(out.contact_force[1], out.contact_force[0], rtol=0, atol=1e-9)
+    assert touched > 0.0 and abs(float(q[0, 4]) - 0.1) > 0.01  # in contact, and the knob turned
