@@ -279,11 +279,12 @@ def test_cpu_threads_setting(monkeypatch):
         world_blocks(256, cpu)
 
 
-def test_claw_in_contact_is_mirror_symmetric():
-    """The claw scene is symmetric about the xz plane: the left and right fingers swap with their joint angles
-    negated, and so does the knob's angle. A mirrored state driven by the mirrored torques stays the mirror of
-    the original, in contact, to the bit. So a policy that learns one turning direction only (docs/results.md,
-    session 14) is not favoured by the physics."""
+def test_claw_mirrored_turning_states_stay_mirrored():
+    """test_claw_mirror_symmetry's states are their own mirror images; here two worlds hold an asymmetric state
+    (knob turned, random velocities and torques) and its mirror image (left and right fingers swapped with their
+    angles negated, the knob's angle negated). Stepped in contact while the knob turns, they stay mirror images
+    to the bit, so the physics favours neither turning direction (docs/results.md, session 14: policies that
+    learn one direction only)."""
     from dexmots_rl.apps.bench_setup import bench_task
     from dexmots_rl.envs import task_contact, task_scene
     from dexmots_rl.sim import Control, Simulator
