@@ -135,6 +135,7 @@ def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, si
 
     monkeypatch.setattr(shac, "_log_row", log_and_signal)
     run = tmp_path / "run"
+
     def outer(signum, frame):  # the caller's own handler (the default one is SIG_IGN under `nohup ... &`)
         raise AssertionError("the trainer's handler should have taken the signal")
 

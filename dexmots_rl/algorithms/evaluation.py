@@ -51,9 +51,9 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         _record(task_cfg, rollout, record, record_worlds, live)
     nxt = rollout.get("next")
     success = nxt.get("success").squeeze(-1)  # [N, T]
-    final_error = base.goal_error(nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1])
-    won = success[:, -1]
     final_achieved, final_goal = nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1]
+    final_error = base.goal_error(final_achieved, final_goal)
+    won = success[:, -1]
     kept = ~nxt.get("terminated").squeeze(-1).any(-1)  # [N]: no termination (e.g. a dropped object)
     first = torch.where(success.any(-1), success.float().argmax(-1), torch.full_like(won, -1, dtype=torch.long))
     tts = (first[won] + 1).float() * base.sim.dt

@@ -38,10 +38,12 @@ from ..config import TaskConfig, check_range
 from ..references import lookup
 from ..rewards import action_penalty, angle_tracking_reward, distal_weighted_joint_weights, fingertip_reward
 
-__all__ = ["KnobTurnConfig", "KnobTurnEnv", "REFERENCE_TORQUES"]
+__all__ = ["KnobTurnConfig", "KnobTurnEnv", "PARAM_BREAKDOWNS", "REFERENCE_TORQUES"]
 
 REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is computed for
 KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
+# dexmots-eval breakdowns by the knob joint's randomised parameters (every knob-like task draws them)
+PARAM_BREAKDOWNS = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping")}
 
 
 @dataclasses.dataclass
@@ -87,8 +89,7 @@ class KnobTurnEnv(DexEnv):
     reward_terms = ("pose", "wrench", "action", "fingertip")
     # dexmots-eval: success by quartiles of each; the signed goal's lower two quartiles turn the knob one way and
     # the upper two the other, so a policy that learnt one direction only shows as 0 % / 100 % halves
-    breakdowns = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping"),
-                  "goal": ("task", "goal")}
+    breakdowns = {**PARAM_BREAKDOWNS, "goal": ("task", "goal")}
 
     def __init__(self, config: KnobTurnConfig, **kwargs):
         super().__init__(config, **kwargs)

@@ -28,7 +28,7 @@ from ....sim import ContactParams
 from ...config import BenchPoses, check_range
 from ...pregrasp import ContactRegion, PregraspError, load_pregrasps, pregrasp_path
 from ...rewards import RewardCoefficients
-from ..knob import KnobTurnConfig, KnobTurnEnv
+from ..knob import PARAM_BREAKDOWNS, KnobTurnConfig, KnobTurnEnv
 
 __all__ = ["OperateConfig", "OperateEnv", "HAND_CONTACT", "FLAT", "bench_poses"]
 
@@ -82,8 +82,8 @@ class OperateEnv(KnobTurnEnv):
     contact_params = HAND_CONTACT
     contact_regions: ClassVar[tuple[ContactRegion, ...]] = ()  # where the pre-grasps put the fingertips
     pregrasp_hint: ClassVar[tuple[float, ...]] = FLAT  # the pose the pre-grasp search starts from
-    breakdowns = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping"),
-                  "stiffness": ("sim", "params", "joint_stiffness")}  # the goal is the same every episode
+    # no goal breakdown: the goal is the same every episode
+    breakdowns = {**PARAM_BREAKDOWNS, "stiffness": ("sim", "params", "joint_stiffness")}
 
     def __init__(self, config: OperateConfig, **kwargs):
         super().__init__(config, **kwargs)
