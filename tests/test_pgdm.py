@@ -68,7 +68,8 @@ def test_free_object_reward_and_early_termination(tmp_path):
 
 
 def test_observation_width_targets_and_time_features(tmp_path):
-    cfg = _cfg(tmp_path, "task.max_episode_steps=100")
+    # the layout, unmirrored (tests/test_mirror.py checks the reflection of the mirrored task's worlds)
+    cfg = _cfg(tmp_path, "task.max_episode_steps=100", "task.mirror=false")
     plain = make_env(cfg.task, differentiable=False, seed=0)
     base = plain.base_env
     td = plain.reset()

@@ -14,7 +14,9 @@ What PGDM changes (everything else, the evaluation included, is the task's and P
   reference object coordinates at ``t + k`` for ``k`` in ``algo.target_offsets`` (1, 5, 10: the task's own
   reference, :meth:`~dexmots_rl.envs.base.DexEnv.goal_window`, the one the ``pose_traj`` goals read), then
   ``sin(τ f)`` for ``f`` in ``algo.time_frequencies`` (1, 4, 6, 8) and the same cosines, τ = step / episode
-  length. Width: ``2 nu + 3 F + (2 K | 13) + len(offsets) D + 2 len(frequencies)``.
+  length. Width: ``2 nu + 3 F + (2 K | 13) + len(offsets) D + 2 len(frequencies)``. On a mirrored task
+  (``task.mirror``) the worlds with a negative goal see these features reflected, as the task's own
+  observation is.
 * **Reward** (:func:`tracking_reward`), what the critic and the advantages see (``"pgdm_reward"``; the logged
   ``"reward"`` stays the task's): ``10 exp(-50 (‖p - p̄‖ + 0.1 θ(q, q̄) / π)) + 2.5 [lifted]`` against the
   reference at the current step. A hinged part's pose error is its angle error: its body turns about the
@@ -43,6 +45,7 @@ from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data import Composite, Unbounded
 
+from ..envs.mirror import SignedPermutation, reflect_mirrored
 from ..envs.transforms import StateTransform
 from ..quaternions import quat_angle
 from . import ppo
@@ -94,6 +97,18 @@ class PGDMFeatures:
         self.lift_height, self.far = float(algo["lift_height"]), float(algo["termination_distance"])
         self.width = (2 * self.nu + 3 * self.num_fingers + object_state + len(self.offsets) * self.coords
                       + 2 * len(self.frequencies))
+        self.reflection = self._reflection(task_env) if task_env.config.mirror else None
+
+    def _reflection(self, task_env) -> SignedPermutation:
+        """The observation's reflection for a mirrored task (``task.mirror``): the task's per-entry maps; the
+        reference targets reflect as its goal error's window does; the time features do not change."""
+        maps, _ = task_env.mirror_maps()
+        targets = maps["goal_error"]
+        targets = targets if isinstance(targets, SignedPermutation) else targets(len(self.offsets) * self.coords)
+        return SignedPermutation.concat([
+            maps[("hand", "q")], maps[("hand", "qd")], maps[("fingertips", "pos")],
+            maps[("object", "q")] if self.articulated else maps[("object", "pose")], maps[("object", "qd")],
+            targets, SignedPermutation.identity(2 * len(self.frequencies))])
 
     def targets(self, td: TensorDictBase, offsets) -> torch.Tensor:
         """The reference object coordinates at ``step + offsets`` [N, len(offsets), D]."""
@@ -110,7 +125,9 @@ class PGDMFeatures:
         parts = [td.get(("hand", "q")), td.get(("hand", "qd")), td.get(("fingertips", "pos")).flatten(1), *obj,
                  td.get(("object", "qd")), self.targets(td, self.offsets).to(dtype).flatten(1),
                  torch.sin(tau * freqs), torch.cos(tau * freqs)]
-        return torch.cat(parts, -1)
+        obs = torch.cat(parts, -1)
+        # a mirrored task's worlds with a negative goal act in the mirror, so they must also see it
+        return obs if self.reflection is None else reflect_mirrored(td, obs, self.reflection)
 
     def errors(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """``(position error [N, 1] m, rotation error [N, 1] rad, lifted [N, 1] or None)`` of the object

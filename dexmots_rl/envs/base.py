@@ -172,6 +172,12 @@ class DexEnv(EnvBase):
             parts.append(ref["joint_torque"] if articulated else ref["wrench"])
         return torch.cat(parts, -1)
 
+    def mirror_maps(self):
+        """``(maps, action)`` of a mirror-symmetric task (:mod:`..mirror`): the reflection of each policy entry
+        ``{key: SignedPermutation}`` and of the action, under which the task is itself with the goal negated;
+        ``None`` (the default): the task has no such symmetry and ``task.mirror`` is refused."""
+        return None
+
     def scripted_action(self, td: TensorDictBase) -> torch.Tensor:
         """A hand-written controller's torque-space action [N, nu] for the state in ``td`` (smoke runs,
         recordings and plots); tasks without one raise ``NotImplementedError``."""

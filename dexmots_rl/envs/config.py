@@ -61,6 +61,7 @@ class TaskConfig:
     substeps: int = 16  # physics substeps per env step
     references: Optional[str] = None  # plan file / directory from dexmots-plan; None: the task's analytic reference
     reward: RewardCoefficients = dataclasses.field(default_factory=RewardCoefficients)  # paper Eq. 3's λ
+    mirror: bool = False  # worlds with a negative goal see the task mirrored (a mirror-symmetric task's option)
 
     def validate(self) -> "TaskConfig":
         """Check every field (``ValueError`` naming the first bad one); returns self."""
@@ -72,6 +73,8 @@ class TaskConfig:
             raise ValueError(f"task.goal must be one of {', '.join(GOAL_MODES)}, got {self.goal!r}")
         if self.action not in ACTION_TYPES:
             raise ValueError(f"task.action must be one of {', '.join(ACTION_TYPES)}, got {self.action!r}")
+        if not isinstance(self.mirror, bool):
+            raise ValueError(f"task.mirror must be true or false, got {self.mirror!r}")
         if not isinstance(self.reward, RewardCoefficients):
             self.reward = RewardCoefficients(**dict(self.reward))
         return self
@@ -97,9 +100,15 @@ def override_config(cfg: TaskConfig, overrides: dict[str, Any]) -> TaskConfig:
     return dataclasses.replace(cfg, **values).validate()
 
 
+# fields added after runs were saved, with the value that keeps a saved config's task what it trained on
+# (a field missing from a saved config otherwise takes today's default)
+SAVED_CONFIG_DEFAULTS = {"mirror": False}
+
+
 def config_from_dict(cls, data: dict[str, Any]) -> TaskConfig:
-    """Build a ``cls`` config from a plain dict (e.g. a checkpoint's or hydra's resolved ``task``)."""
-    return override_config(cls(), dict(data))
+    """Build a ``cls`` config from a plain dict (e.g. a checkpoint's or hydra's resolved ``task``); a field
+    the dict predates takes its :data:`SAVED_CONFIG_DEFAULTS` value."""
+    return override_config(cls(), {**SAVED_CONFIG_DEFAULTS, **dict(data)})
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,7 +23,8 @@ from torchrl.envs import TransformedEnv
 
 from .base import DexEnv
 from .config import TaskConfig, config_from_dict, override_config
-from .transforms import observation_transform
+from .mirror import MirrorGoal
+from .transforms import POLICY_KEYS, observation_transform
 
 __all__ = ["TASKS", "OBS_MODES", "TaskEntry", "register_task", "list_tasks", "task_config", "task_entry",
            "task_scene", "task_contact", "make_env"]
@@ -124,6 +125,11 @@ def make_env(task: str | TaskConfig, num_envs: int | None = None, device="cpu", 
     if raw:
         return env
     env = TransformedEnv(env, observation_transform(cfg.goal, cfg.goal_horizon))
+    if cfg.mirror:
+        maps = env.base_env.mirror_maps()
+        if maps is None:
+            raise ValueError(f"task.mirror: task {cfg.name!r} is not mirror-symmetric (it declares no mirror)")
+        env.append_transform(MirrorGoal(*maps, policy_keys=POLICY_KEYS))
     if obs == "rgb":
         from .pixels import RGBObservation
 

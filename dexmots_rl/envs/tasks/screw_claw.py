@@ -4,7 +4,8 @@ The knob task's reference, reward and success are :mod:`.knob`'s. The claw: |goa
 damping in [0.3, 0.7] and friction in [0.2, 1.0] N m per episode; the hand starts from a grasp (the
 paper initialises its claw policies from one): distal links resting on the knob, or ``initial="open"``
 (proximal joints spread by ``open_angle``), with a little joint noise. Success: |θ − θ*| < 0.1 rad at
-the episode end.
+the episode end. The scene is symmetric about the xz-plane, and by default (``mirror=True``) worlds with a
+negative goal are seen in that mirror (:mod:`..mirror`): the policy learns to turn one way.
 
 Example:
     >>> from dexmots_rl.envs import make_env
@@ -22,6 +23,7 @@ import math
 import torch
 
 from ..config import BenchPoses, PlanProblem
+from ..mirror import SignedPermutation
 from ..registry import register_task
 from ..rewards import RewardCoefficients
 from .knob import KnobTurnConfig, KnobTurnEnv
@@ -44,6 +46,9 @@ class ScrewClawConfig(KnobTurnConfig):
     initial: str = "grasp"  # open (fingers spread) | grasp (resting on the knob, as the paper starts)
     open_angle: float = math.radians(60.0)  # rad: proximal spread of the "open" start
     torque_scale: float = 5.0  # N m; 1 N m made policies let go (squeezing puts 20-50 N m on the hinge)
+    # the claw and knob are mirror-symmetric: worlds turning the negative way are seen in the mirror, so a policy
+    # learns one direction (AHAC: 100 % on seeds 0-3 against 96-98 %, and no run stuck turning one way only)
+    mirror: bool = True
     # lambda_f 0.1 let the fingers flick the knob and let go (36 % success); 1.0 keeps them on it
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=1.0))
@@ -84,6 +89,21 @@ class ScrewClawEnv(KnobTurnEnv):
     def start_pose(self) -> tuple[float, ...]:
         a = self.config.open_angle
         return (a, 0.0, -a, 0.0) if self.config.initial == "open" else INITIAL_POSES["grasp"]
+
+    def mirror_maps(self):
+        """The claw and knob reflected in the xz-plane: the fingers swap, every joint angle and velocity and the
+        goal's angles and torques negate, the fingertips' y negates; stiffness actions swap unsigned. The
+        physics is exactly symmetric (tests/test_mirror.py steps a state and its reflection side by side)."""
+        swap, minus = (2, 3, 0, 1), (-1.0,) * 4
+        joints = SignedPermutation(swap, minus)
+        targets = joints if self.config.action != "vi" else SignedPermutation.concat(
+            [joints, SignedPermutation(swap, (1.0,) * 4)])
+        knob = SignedPermutation((0,), (-1.0,))
+        tips = SignedPermutation((3, 4, 5, 0, 1, 2), (1.0, -1.0, 1.0) * 2)
+        maps = {("hand", "q"): joints, ("hand", "qd"): joints, ("object", "q"): knob, ("object", "qd"): knob,
+                ("fingertips", "pos"): tips, "desired_goal": SignedPermutation.negate,
+                "goal_error": SignedPermutation.negate}
+        return maps, targets
 
     def scripted_action(self, td) -> torch.Tensor:
         """A torque-space grasp-and-twist controller (no learning): the smoke job's and the plots'."""
