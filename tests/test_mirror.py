@@ -94,3 +94,16 @@ def test_pgdm_features_of_a_world_and_its_reflection_agree():
     obs = features.observation(nxt)
     torch.testing.assert_close(obs[1], obs[0], rtol=0, atol=1e-9)
     assert not torch.allclose(nxt.get(("hand", "q"))[1], nxt.get(("hand", "q"))[0])
+
+
+def test_the_scripted_controller_acts_the_same_in_a_mirrored_and_an_unmirrored_env():
+    """ScriptedPolicy acts in the real scene: through the mirrored env the worlds step as without it."""
+    from dexmots_rl.envs import ScriptedPolicy
+
+    outcomes = []
+    for mirror in (True, False):
+        env = make_env("screw_claw", num_envs=4, differentiable=False, seed=0, action="torque", mirror=mirror)
+        td = env.rollout(5, ScriptedPolicy(env.base_env))
+        assert (td["task", "goal"] < 0).any() and (td["task", "goal"] > 0).any()
+        outcomes.append(td["next", "sim", "joint_q"])
+    torch.testing.assert_close(outcomes[0], outcomes[1], rtol=0, atol=0)

@@ -47,8 +47,29 @@ def test_the_chosen_plan_is_never_worse_than_the_nominal_on_screw_claw():
     action = planner(td)["action"]  # samples afresh from the same nominal (the first plan of the episode)
     chosen = planner.plan_return(check, state, planner.plan)
     assert (chosen >= planner.plan_return(check, state, nominal) - 1e-5).all()
-    torch.testing.assert_close(action, planner.actions(planner.plan)[:, 0])
+    real = planner.actions(planner.plan)[:, 0]  # the plan's action in the real scene
+    # the claw's env is mirrored: worlds with a negative goal get the reflection, which the env reflects back
+    mirrored = td["task", "goal"][:, 0] < 0
+    assert mirrored.any() and (~mirrored).any()  # this state has one world of each kind
+    torch.testing.assert_close(action[~mirrored], real[~mirrored])
+    torch.testing.assert_close(action[mirrored], planner.mirror(real[mirrored]))
     assert planner.budget()["sim_steps"] == 2 * (2 * 6 * 4)  # sample() was called twice
+
+
+def test_the_planner_acts_the_same_in_a_mirrored_and_an_unmirrored_env():
+    """The planner plans in the real scene; through a mirrored env (task.mirror) the world steps as without."""
+    from torchrl.envs.utils import step_mdp
+
+    outcomes = []
+    for mirror in (True, False):
+        env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0, mirror=mirror)
+        planner = PredictiveSampler.for_task(env.base_env.config, 2, candidates=3, horizon=4, knots=2, seed=1,
+                                             refine_steps=0)
+        td = env.reset()
+        for _ in range(2):
+            td = step_mdp(env.step(planner(td)))
+        outcomes.append(td["sim", "joint_q"])
+    torch.testing.assert_close(outcomes[0], outcomes[1], rtol=0, atol=0)
 
 
 def test_refinement_never_increases_the_cost_on_screw_claw():

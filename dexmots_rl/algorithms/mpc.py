@@ -44,6 +44,7 @@ from tqdm.auto import tqdm
 
 from ..envs import make_env
 from ..envs.config import check_number
+from ..envs.mirror import SignedPermutation, action_reflection, reflect_mirrored
 from ..viz.table_writer import NO_TRAINING
 from .common import RunWriter
 from .evaluation import evaluate_policy
@@ -123,13 +124,17 @@ class PredictiveSampler(TensorDictModuleBase):
     for a registered task. ``state_keys``: the entries that hold a world's whole state; ``step_key``: its
     episode step counter (0 restarts the warm start). The planner keeps its plans between calls, so one
     instance follows one batch of episodes: ``env.rollout(steps, planner, auto_reset=False)``.
-    ``progress``: a tqdm bar advanced once per control step (or None). See the module docstring for a step.
+    ``progress``: a tqdm bar advanced once per control step (or None). ``mirror``: the action reflection of a
+    mirrored task env (``task.mirror``) the planner acts in: its plans are the real scene's actions, so the
+    worlds that env shows in the mirror get theirs reflected, and the env reflects them back. See the module
+    docstring for a step.
     """
 
     def __init__(self, sample_env, refine_env=None, *, num_worlds: int, candidates: int = 32, horizon: int = 30,
                  knots: int = 4, noise: float = 0.5, interpolation: str = "linear", refine_steps: int = 2,
                  refine_lr: float = 0.05, refine_optimizer: str = "adam", initial_plan: str = "hold",
-                 state_keys=STATE, step_key=("task", "step"), seed: int = 0, progress=None):
+                 state_keys=STATE, step_key=("task", "step"), seed: int = 0, progress=None,
+                 mirror: SignedPermutation | None = None):
         super().__init__()
         check_config(dict(candidates=candidates, horizon=horizon, knots=knots, noise=noise,
                           interpolation=interpolation, refine_steps=refine_steps, refine_lr=refine_lr,
@@ -145,6 +150,7 @@ class PredictiveSampler(TensorDictModuleBase):
         self.num_worlds, self.candidates, self.horizon, self.knots = num_worlds, candidates, horizon, knots
         self.noise, self.refine_steps, self.refine_lr = noise, refine_steps, refine_lr
         self.refine_optimizer, self.initial_plan, self.progress = refine_optimizer, initial_plan, progress
+        self.mirror = mirror
         space = sample_env.action_spec_unbatched.space
         self.low, self.high = space.low, space.high
         dtype, device = self.low.dtype, self.low.device
@@ -170,7 +176,7 @@ class PredictiveSampler(TensorDictModuleBase):
         refine_env = (make_env(task_cfg, num_envs=num_worlds, differentiable=True, raw=True, seed=seed,
                                device=device) if refine_steps else None)
         return cls(sample_env, refine_env, num_worlds=num_worlds, candidates=candidates, refine_steps=refine_steps,
-                   seed=seed, **kwargs)
+                   seed=seed, mirror=action_reflection(sample_env), **kwargs)
 
     # ------------------------------------------------------------------------------------------ plans
     def actions(self, knots: torch.Tensor) -> torch.Tensor:
@@ -281,7 +287,8 @@ class PredictiveSampler(TensorDictModuleBase):
         if self.progress is not None:
             self.progress.update(1)
             self.progress.set_postfix(plan_return=f"{float(ret.mean()):.2f}")
-        return tensordict.set("action", self.actions(plan)[:, 0])
+        action = self.actions(plan)[:, 0]
+        return tensordict.set("action", action if self.mirror is None else reflect_mirrored(state, action, self.mirror))
 
     def budget(self) -> dict:
         """The stated compute per control step and evaluation world, and what the planner has spent so far."""

@@ -25,6 +25,7 @@ from torchrl.envs import EnvBase
 from ..sim import SceneModel, Simulator
 from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
+from .mirror import action_reflection, reflect_mirrored
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
@@ -369,16 +370,21 @@ def _rebuild_env(cls, kwargs: dict, generator_state: torch.Tensor) -> DexEnv:
 
 
 class ScriptedPolicy(TensorDictModuleBase):
-    """The task's scripted controller (:meth:`DexEnv.scripted_action`) as a torchrl policy module; the
-    env must use the ``"torque"`` action space."""
+    """The task's scripted controller (:meth:`DexEnv.scripted_action`) as a torchrl policy module for the env
+    ``make_env`` builds around ``env``; the env must use the ``"torque"`` action space. The controller acts in
+    the real scene, so on a mirrored task (``task.mirror``) the mirrored worlds' actions are reflected for
+    the env to reflect back."""
 
     def __init__(self, env: DexEnv):
         super().__init__()
         if env.action_type != "torque":
             raise ValueError(f"the scripted controller acts in torque space; the env uses action={env.action_type!r} "
                              "(build it with action='torque')")
-        self.env = env
+        self.env, self.reflection = env, action_reflection(env)
         self.in_keys, self.out_keys = [("task", "goal"), ("sim", "joint_q")], ["action"]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return tensordict.set("action", self.env.scripted_action(tensordict).to(self.env.dtype))
+        action = self.env.scripted_action(tensordict).to(self.env.dtype)
+        if self.reflection is not None:
+            action = reflect_mirrored(tensordict, action, self.reflection)
+        return tensordict.set("action", action)

@@ -30,7 +30,7 @@ from tensordict import TensorDictBase
 
 from .transforms import StateTransform
 
-__all__ = ["MirrorGoal", "SignedPermutation", "mirrored_worlds", "reflect_mirrored"]
+__all__ = ["MirrorGoal", "SignedPermutation", "action_reflection", "mirrored_worlds", "reflect_mirrored"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +82,13 @@ def mirrored_worlds(td: TensorDictBase, goal_key=("task", "goal")) -> torch.Tens
 def reflect_mirrored(td: TensorDictBase, x: torch.Tensor, reflection: SignedPermutation) -> torch.Tensor:
     """``x`` [..., n] with the mirrored worlds' rows reflected."""
     return torch.where(mirrored_worlds(td), reflection(x), x)
+
+
+def action_reflection(task_env) -> SignedPermutation | None:
+    """The action reflection a controller acting in the real scene (a scripted controller, a planner) applies
+    to the mirrored worlds of ``task_env``'s task, so that the env reflects it back; ``None`` when the task is
+    not mirrored (``task.mirror`` off)."""
+    return task_env.mirror_maps()[1] if task_env.config.mirror else None
 
 
 class MirrorGoal(StateTransform):
