@@ -46,6 +46,7 @@ class SignedPermutation:
                              f"{self.index} and sign {self.sign}")
         if any(s not in (-1.0, 1.0) for s in self.sign):
             raise ValueError(f"signs must be +-1, got {self.sign}")
+        object.__setattr__(self, "_tensors", {})  # (dtype, device) -> (index, sign): built once, used every step
 
     @classmethod
     def negate(cls, width: int) -> "SignedPermutation":
@@ -70,8 +71,12 @@ class SignedPermutation:
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[-1] != len(self.index):
             raise ValueError(f"this reflection maps vectors of {len(self.index)} entries, got {x.shape[-1]}")
-        index = torch.as_tensor(self.index, device=x.device)
-        return x.index_select(-1, index) * torch.as_tensor(self.sign, dtype=x.dtype, device=x.device)
+        key = (x.dtype, x.device)
+        if key not in self._tensors:
+            self._tensors[key] = (torch.as_tensor(self.index, device=x.device),
+                                  torch.as_tensor(self.sign, dtype=x.dtype, device=x.device))
+        index, sign = self._tensors[key]
+        return x.index_select(-1, index) * sign
 
 
 def mirrored_worlds(td: TensorDictBase, goal_key=("task", "goal")) -> torch.Tensor:
