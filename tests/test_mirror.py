@@ -107,3 +107,18 @@ def test_the_scripted_controller_acts_the_same_in_a_mirrored_and_an_unmirrored_e
         assert (td["task", "goal"] < 0).any() and (td["task", "goal"] > 0).any()
         outcomes.append(td["next", "sim", "joint_q"])
     torch.testing.assert_close(outcomes[0], outcomes[1], rtol=0, atol=0)
+
+
+def test_resuming_a_run_saved_before_the_field_keeps_its_unmirrored_task():
+    """A resumed run trains its checkpoint's task; a task config saved before task.mirror existed had none."""
+    from hydra import compose, initialize_config_dir
+
+    from dexmots_rl.algorithms.rundir import resume_config
+    from dexmots_rl.apps.train import config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        cfg = compose("config", overrides=["task=screw_claw"])
+    saved = {"task": {k: v for k, v in dict(cfg.task).items() if k != "mirror"}, "algo": dict(cfg.algo),
+             "seed": cfg.seed}
+    assert cfg.task.mirror is True
+    assert resume_config(cfg, {"config": saved}, "old_run", overrides=[]).task.mirror is False

@@ -16,6 +16,7 @@ import shutil
 from pathlib import Path
 
 from ..atomic import atomic_write, clean_stale_temps
+from ..envs.config import SAVED_CONFIG_DEFAULTS
 from .checkpoint import CheckpointError
 
 __all__ = ["RUN_FILES", "RunDirLock", "holds_run", "prepare_fresh_run_dir", "truncate_logs", "resume_config"]
@@ -150,7 +151,9 @@ def resume_config(cfg, checkpoint: dict, source, overrides: list[str] | None):
     ``overrides=None`` (a Python caller) compares every locked key of ``cfg``."""
     from omegaconf import OmegaConf
 
-    saved = checkpoint.get("config") or {}
+    saved = dict(checkpoint.get("config") or {})
+    if isinstance(saved.get("task"), dict):  # fields the saved task predates keep the task it trained on
+        saved["task"] = {**SAVED_CONFIG_DEFAULTS, **saved["task"]}
     mine = OmegaConf.to_container(cfg, resolve=True)
     if overrides is None:
         keys = [k for section in LOCKED for k, _ in _leaves({section: mine.get(section)})]
