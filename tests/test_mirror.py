@@ -122,3 +122,8 @@ def test_resuming_a_run_saved_before_the_field_keeps_its_unmirrored_task():
              "seed": cfg.seed}
     assert cfg.task.mirror is True
     assert resume_config(cfg, {"config": saved}, "old_run", overrides=[]).task.mirror is False
+
+
+def test_a_raw_env_refuses_mirror_on_a_task_without_the_symmetry():
+    with pytest.raises(ValueError, match="task.mirror"):
+        make_env("allegro_rotate", num_envs=1, mirror=True, raw=True)

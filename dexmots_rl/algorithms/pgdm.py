@@ -45,7 +45,7 @@ from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data import Composite, Unbounded
 
-from ..envs.mirror import SignedPermutation, reflect_mirrored
+from ..envs.mirror import SignedPermutation, reflect_mirrored, sized
 from ..envs.transforms import StateTransform
 from ..quaternions import quat_angle
 from . import ppo
@@ -103,8 +103,7 @@ class PGDMFeatures:
         """The observation's reflection for a mirrored task (``task.mirror``): the task's per-entry maps; the
         reference targets reflect as its goal error's window does; the time features do not change."""
         maps, _ = task_env.mirror_maps()
-        targets = maps["goal_error"]
-        targets = targets if isinstance(targets, SignedPermutation) else targets(len(self.offsets) * self.coords)
+        targets = sized(maps["goal_error"], len(self.offsets) * self.coords, "the reference targets")
         return SignedPermutation.concat([
             maps[("hand", "q")], maps[("hand", "qd")], maps[("fingertips", "pos")],
             maps[("object", "q")] if self.articulated else maps[("object", "pose")], maps[("object", "qd")],

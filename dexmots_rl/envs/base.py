@@ -72,6 +72,8 @@ class DexEnv(EnvBase):
         scene: SceneModel | None = None,
     ):
         self.config = config.validate()
+        if config.mirror and self.mirror_maps() is None:
+            raise ValueError(f"task.mirror: task {config.name!r} is not mirror-symmetric (it declares no mirror)")
         # what __reduce__ rebuilds from: the simulator holds warp (ctypes) arrays that cannot be pickled
         self._init_kwargs = dict(config=config, num_envs=num_envs, device=device, differentiable=differentiable,
                                  seed=seed, dtype=dtype, adjoint_clip=adjoint_clip, contact=contact, scene=scene)

@@ -30,7 +30,7 @@ from tensordict import TensorDictBase
 
 from .transforms import StateTransform
 
-__all__ = ["MirrorGoal", "SignedPermutation", "action_reflection", "mirrored_worlds", "reflect_mirrored"]
+__all__ = ["MirrorGoal", "SignedPermutation", "action_reflection", "mirrored_worlds", "reflect_mirrored", "sized"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +79,15 @@ class SignedPermutation:
         return x.index_select(-1, index) * sign
 
 
+def sized(part, width: int, key) -> SignedPermutation:
+    """A task's map of entry ``key``, ``width`` wide: a :class:`SignedPermutation`, or a function of the width
+    (e.g. :meth:`SignedPermutation.negate` for a goal window) called with it; a width mismatch fails naming the key."""
+    part = part if isinstance(part, SignedPermutation) else part(width)
+    if len(part.index) != width:
+        raise ValueError(f"the task's mirror of {key} has {len(part.index)} entries, the entry {width}")
+    return part
+
+
 def mirrored_worlds(td: TensorDictBase, goal_key=("task", "goal")) -> torch.Tensor:
     """[..., 1] bool: the worlds a mirrored task shows in the mirror (those whose goal is negative)."""
     return td.get(goal_key)[..., :1] < 0
@@ -113,14 +122,9 @@ class MirrorGoal(StateTransform):
         """The reflection of the whole ``"observation"``, assembled from the policy keys' maps (a map may be a
         function of the entry's width, e.g. :meth:`SignedPermutation.negate` for a goal window)."""
         if self._observation_map is None:
-            spec, parts = self.parent.observation_spec, []
-            for key in self.policy_keys:
-                width = int(torch.Size(spec[key].shape[len(self.parent.batch_size):]).numel())
-                part = self.maps[key] if isinstance(self.maps[key], SignedPermutation) else self.maps[key](width)
-                if len(part.index) != width:
-                    raise ValueError(f"the task's mirror of {key} has {len(part.index)} entries, the entry {width}")
-                parts.append(part)
-            self._observation_map = SignedPermutation.concat(parts)
+            spec, lead = self.parent.observation_spec, len(self.parent.batch_size)
+            self._observation_map = SignedPermutation.concat([
+                sized(self.maps[key], int(torch.Size(spec[key].shape[lead:]).numel()), key) for key in self.policy_keys])
         return self._observation_map
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:

@@ -125,11 +125,8 @@ def make_env(task: str | TaskConfig, num_envs: int | None = None, device="cpu", 
     if raw:
         return env
     env = TransformedEnv(env, observation_transform(cfg.goal, cfg.goal_horizon))
-    if cfg.mirror:
-        maps = env.base_env.mirror_maps()
-        if maps is None:
-            raise ValueError(f"task.mirror: task {cfg.name!r} is not mirror-symmetric (it declares no mirror)")
-        env.append_transform(MirrorGoal(*maps, policy_keys=POLICY_KEYS))
+    if cfg.mirror:  # the env refused the option if the task has no mirror
+        env.append_transform(MirrorGoal(*env.base_env.mirror_maps(), policy_keys=POLICY_KEYS))
     if obs == "rgb":
         from .pixels import RGBObservation
 
