@@ -97,3 +97,43 @@ def test_the_original_codes_looser_test_ignores_z_and_passes_every_success_of_ou
     actor, _, _ = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1], (8,))
     ev = evaluate_policy(actor, task, episodes=8, seed=0)
     assert ev["success_rate"] <= ev["success_rate_original_test"] <= 1.0
+
+
+def test_rest_on_palm_lifts_the_goal_and_reference_so_the_turned_cube_still_touches_the_palm():
+    env = make_env("repose_cube", num_envs=16, seed=1, differentiable=False, rest_on_palm=True).base_env
+    td = env.reset()
+    start, half = env._cube, 0.0325  # the cube's start pose and its half size (m)
+
+    def lowest(pose):  # z of the cube's lowest corner, pose [N, 7]
+        from dexmots_rl.quaternions import quat_to_matrix
+        return pose[:, 2] - half * quat_to_matrix(pose[:, 3:])[:, 2, :].abs().sum(-1)
+
+    goal = td["task", "goal"]
+    palm = float(start[2]) - half
+    torch.testing.assert_close(lowest(goal), torch.full((16,), palm, dtype=goal.dtype))
+    assert float((goal[:, 2] - start[2]).max()) > 0.005  # tilted goals do rise (up to 1.35 cm at 45 degrees)
+    ref = env.reference(td, torch.tensor([[0, 40, 100, 150]]).expand(16, -1))["pose"]  # [N, 4, 7]
+    for k in range(4):
+        torch.testing.assert_close(lowest(ref[:, k]), torch.full((16,), palm, dtype=goal.dtype))
+    torch.testing.assert_close(ref[:, 0], start.expand(16, 7))
+    torch.testing.assert_close(ref[:, 3], goal)
+    # without it the centre stays where the cube starts
+    flat = make_env("repose_cube", num_envs=16, seed=1, differentiable=False).base_env
+    assert torch.equal(flat.reset()["task", "goal"][:, :3], start[:3].expand(16, 3))
+
+
+def test_the_turn_breakdowns_recover_the_goals_angles_about_z_and_x():
+    from tensordict import TensorDict
+
+    from dexmots_rl.quaternions import quat_multiply
+
+    env = make_env("repose_cube", num_envs=3, seed=0, differentiable=False).base_env
+    a = torch.tensor([0.9, -0.4, 0.0], dtype=env.dtype)
+    b = torch.tensor([-0.7, 0.0, 1.0], dtype=env.dtype)
+    zero = torch.zeros(3, dtype=env.dtype)
+    qz = torch.stack([torch.cos(a / 2), zero, zero, torch.sin(a / 2)], -1)
+    qx = torch.stack([torch.cos(b / 2), torch.sin(b / 2), zero, zero], -1)
+    goal = torch.cat([env._cube[:3].expand(3, 3), quat_multiply(qz, qx)], -1)
+    td = TensorDict({("task", "goal"): goal}, batch_size=[3])
+    torch.testing.assert_close(env.breakdowns["goal_turn_z"](env, td), a.abs())
+    torch.testing.assert_close(env.breakdowns["goal_turn_x"](env, td), b.abs())
