@@ -11,8 +11,8 @@ cube moving more than ``fall_distance`` (0.24 m) from its goal position terminat
 Reference: the orientation slerps from the start to the goal over ``ramp_steps`` steps and the position
 stays where the cube starts (with ``rest_on_palm``, the goal's and the reference's centre rise with their tilt so
 that the turned cube's lowest corner stays on the horizontal palm); the reference wrench is the cube's weight
-carried (``-m g``, no torque: a quasi-static rotation at this speed needs ~1e-4 N m). The measured wrench is the whole hand's push, palm
-included, so it matches the reference however hard the fingers squeeze or push against the palm's
+carried (``-m g``, no torque: a quasi-static rotation at this speed needs ~1e-4 N m). The measured wrench is the
+whole hand's push, palm included, so it matches the reference however hard the fingers squeeze or push against the palm's
 friction (it is the wrench planner's "external wrench besides gravity" too). Measured fingers-only, the
 same term made the policy leave the cube still (0 %, docs/results.md).
 
