@@ -160,8 +160,9 @@ class Simulator:
         self.nv = scene.num_hand_dofs + scene.object_nv
         self.nu = scene.num_hand_dofs
         self.num_bodies = scene.num_hand_dofs + 1
-        # (centre, half extents) of a convex object that is an axis-aligned box (kernels' box_object), else None
-        self._object_box = _box_of_planes(scene.object_planes) if scene.object_shape == 0 else None
+        # (centre, half extents) in m, object frame, of a convex object that is an axis-aligned box (the kernels'
+        # box_object; tasks read it too, e.g. how far a turned cube reaches below its centre), else None
+        self.object_box = _box_of_planes(scene.object_planes) if scene.object_shape == 0 else None
         self.kernels = build_kernels(
             _wp_dtype(dtype),
             scene.num_fingers,
@@ -175,7 +176,7 @@ class Simulator:
               else ()),
             base_boxes=scene.num_base_boxes,
             object_limited=scene.object_limited,
-            box_object=self._object_box is not None,
+            box_object=self.object_box is not None,
         )
         self.model = self._make_model()
 
@@ -216,8 +217,8 @@ class Simulator:
             m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
-        if self._object_box is not None:
-            m.obj_box_center, m.obj_box_half = (k.vec3(*v) for v in self._object_box)
+        if self.object_box is not None:
+            m.obj_box_center, m.obj_box_half = (k.vec3(*v) for v in self.object_box)
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 from tensordict import TensorDict
 
@@ -156,10 +157,11 @@ class ReposeCubeEnv(DexEnv):
 
         self._rest, self._lower, self._upper = t(REST), t(scene.dof_lower), t(scene.dof_upper)
         self._cube = t(scene.object_q0)
-        # the cube's half extents (m), from its face planes (n . p <= d): the lowest point of the turned cube lies
-        # sum_j h_j |R[2, j]| below its centre
-        planes = t(scene.object_planes)
-        self._half = (planes[:, :3].abs() * planes[:, 3:]).amax(0)  # [3]
+        # the cube's box (m, object frame): the lowest point of the cube turned by R lies -(R c)_z + sum_j h_j |R[2, j]|
+        # below its origin
+        if self.config.rest_on_palm and self.sim.object_box is None:
+            raise ValueError("task.rest_on_palm: the scene's object is not an axis-aligned box")
+        self._box_centre, self._box_half = (t(v) for v in (self.sim.object_box or (np.zeros(3), np.zeros(3))))
         self._hold = torch.cat([-scene.object_mass * t(scene.gravity), t((0.0, 0.0, 0.0))])  # [6]: N, N m
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
                                                 device=self.device)
@@ -212,8 +214,9 @@ class ReposeCubeEnv(DexEnv):
         to rest on the palm as it does at the start (zero unless ``rest_on_palm``)."""
         lift = torch.zeros(*quat.shape[:-1], 3, dtype=quat.dtype, device=quat.device)
         if self.config.rest_on_palm:
-            def depth(q):  # how far the cube reaches below its centre
-                return (quat_to_matrix(q)[..., 2, :].abs() * self._half.to(q.dtype)).sum(-1)
+            def depth(q):  # how far the cube reaches below its origin
+                up = quat_to_matrix(q)[..., 2, :]  # [..., 3]: row z of R
+                return (up.abs() * self._box_half.to(q.dtype)).sum(-1) - (up * self._box_centre.to(q.dtype)).sum(-1)
             lift[..., 2] = depth(quat) - depth(self._cube[3:].to(quat.dtype))
         return lift
 
@@ -224,8 +227,10 @@ class ReposeCubeEnv(DexEnv):
         start = self._cube[3:].expand_as(goal[:, 3:])
         frac = (steps.to(self.dtype) / self.config.ramp_steps).clamp(max=1.0).unsqueeze(-1)  # [N, H, 1]
         quat = slerp(start.unsqueeze(1).expand(*frac.shape[:2], 4), goal[:, None, 3:].expand(*frac.shape[:2], 4), frac)
-        centre = goal[:, None, :3] - self.palm_lift(goal[:, None, 3:])  # the start's centre, on the palm
-        pose = torch.cat([centre + self.palm_lift(quat), quat], -1)
+        centre = goal[:, None, :3].expand(*frac.shape[:2], 3)
+        if self.config.rest_on_palm:  # from the goal's height down to the start's, and up with the reference's tilt
+            centre = centre - self.palm_lift(goal[:, None, 3:]) + self.palm_lift(quat)
+        pose = torch.cat([centre, quat], -1)
         zeros = torch.zeros(*frac.shape[:2], 0, dtype=self.dtype, device=self.device)
         return TensorDict({"pose": pose, "joint_q": zeros, "wrench": self._hold.expand(*frac.shape[:2], 6),
                            "joint_torque": zeros}, batch_size=steps.shape)
