@@ -48,6 +48,14 @@ def test_train_writes_run_directory(tmp_path):
     assert any(p.name == "reward.csv" for p in run.rglob("*.csv"))  # torchrl CSV logger output
 
 
+def test_critic_widths_apart_from_the_actor(tmp_path):
+    train(_cfg(tmp_path / "run", "algo.iterations=1", "algo.critic_hidden=[8,8]"))
+    actor, data = policy_from_checkpoint(tmp_path / "run")  # the actor alone is rebuilt from algo.hidden
+    widths = lambda state: [v.shape[0] for k, v in state.items() if k.endswith("weight") and v.dim() == 2]
+    assert widths(data["modules"]["critic"]) == [8, 8, 1]
+    assert widths(actor.state_dict())[:1] == [16]
+
+
 def test_resume_reproduces_the_uninterrupted_run(tmp_path):
     train(_cfg(tmp_path / "straight", "algo.iterations=4"))
     assert train(_cfg(tmp_path / "split", "algo.iterations=4", "stop_after=2")) == {}  # no final eval yet

@@ -37,6 +37,7 @@ def _compose(*overrides):
     ("algo.horizon=-5", "algo.horizon"), ("eval.episodes=0", "eval.episodes"), ("algo.iterations=-3", "algo.iterations"),
     ("algo.gamma=2", "algo.gamma"), ("algo.actor_lr=-1", "algo.actor_lr"), ("algo.critic_lr=nan", "algo.critic_lr"),
     ("algo.lmbda=1.5", "algo.lmbda"), ("algo.betas=[0.9,1.0]", "algo.betas"), ("algo.hidden=[0]", "algo.hidden"),
+    ("algo.critic_hidden=[]", "algo.critic_hidden"),
     ("algo.target_alpha=-0.1", "algo.target_alpha"), ("algo.grad_norm=0", "algo.grad_norm"), ("seed=-1", "seed"),
     ("stop_after=0", "stop_after"), ("eval.every=-1", "eval.every"), ("algo.adjoint_clip=0.5", "algo.adjoint_clip"),
 ])

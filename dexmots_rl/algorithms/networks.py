@@ -61,9 +61,10 @@ def _mlp(in_features: int, out_features: int, hidden, layer_norm: bool) -> MLP:
 
 
 def make_networks(obs_dim: int, action_dim: int, hidden=(256, 128), init_log_std: float = -1.0,
-                  obs_key="observation", layer_norm: bool = True):
+                  obs_key="observation", layer_norm: bool = True, critic_hidden=None):
     """``(actor, critic, norm)``: a ``ProbabilisticActor`` (TanhNormal, state-independent scale) and a
-    ``ValueOperator``, both reading ``obs_key`` through the shared :class:`RunningNorm`.
+    ``ValueOperator``, both reading ``obs_key`` through the shared :class:`RunningNorm`. ``hidden`` are the
+    actor's widths, and the critic's unless ``critic_hidden`` is given.
 
     ``layer_norm`` puts a LayerNorm after every hidden layer, as DiffRL's SHAC networks do: without it the
     claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, session 2)."""
@@ -75,6 +76,6 @@ def make_networks(obs_dim: int, action_dim: int, hidden=(256, 128), init_log_std
     actor = ProbabilisticActor(TensorDictModule(loc_scale, in_keys=[obs_key], out_keys=["loc", "scale"]),
                                in_keys=["loc", "scale"], distribution_class=TanhNormal,
                                distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=False)
-    value = nn.Sequential(norm, _mlp(obs_dim, 1, hidden, layer_norm))
+    value = nn.Sequential(norm, _mlp(obs_dim, 1, hidden if critic_hidden is None else critic_hidden, layer_norm))
     critic = ValueOperator(value, in_keys=[obs_key])
     return actor, critic, norm

@@ -60,8 +60,10 @@ def build(cfg: DictConfig, rank: int = 0):
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     torch.manual_seed(cfg.seed)  # identical initial networks on every rank
+    critic_hidden = cfg.algo.get("critic_hidden")
     actor, critic, norm = make_networks(obs_dim, act_dim, tuple(cfg.algo.hidden), cfg.algo.init_log_std,
-                                        layer_norm=cfg.algo.layer_norm)
+                                        layer_norm=cfg.algo.layer_norm,
+                                        critic_hidden=None if critic_hidden is None else tuple(critic_hidden))
     loss = SHACLoss(actor_network=actor, critic_network=critic, gamma=cfg.algo.gamma, lmbda=cfg.algo.lmbda)
     loss.make_value_estimator()  # built now, so a checkpoint's state_dict finds it when resuming
     with warnings.catch_warnings():  # torchrl warns for eps < 0.5; SHAC's target critic is updated that fast

@@ -43,6 +43,8 @@ _ALGO_RULES = {
     "grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),
     "skip_grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),
     "hidden": (lambda v: len(v) > 0 and all(_integer(h) and h > 0 for h in v), "a non-empty list of positive integers"),
+    "critic_hidden": (lambda v: v is None or (len(v) > 0 and all(_integer(h) and h > 0 for h in v)),
+                      "null or a non-empty list of positive integers"),
     "layer_norm": (lambda v: isinstance(v, bool), "true or false"),
     "init_log_std": (lambda v: _number(v) and -20 <= v <= 5, "a finite number in [-20, 5]"),
     "adjoint_clip": (lambda v: v is None or (_number(v) and v >= 1), "null or a number >= 1"),
