@@ -3,6 +3,7 @@ success metric and the evaluation's final error."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -100,7 +101,7 @@ def test_the_original_codes_looser_test_ignores_z_and_passes_every_success_of_ou
 
 
 def test_rest_on_palm_lifts_the_goal_and_reference_so_the_turned_cube_still_touches_the_palm():
-    env = make_env("repose_cube", num_envs=16, seed=1, differentiable=False, rest_on_palm=True).base_env
+    env = make_env("repose_cube", num_envs=16, seed=1, differentiable=False).base_env  # rest_on_palm: the default
     td = env.reset()
     start, half = env._cube, 0.0325  # the cube's start pose and its half size (m)
 
@@ -118,7 +119,7 @@ def test_rest_on_palm_lifts_the_goal_and_reference_so_the_turned_cube_still_touc
     torch.testing.assert_close(ref[:, 0], start.expand(16, 7))
     torch.testing.assert_close(ref[:, 3], goal)
     # without it the centre stays where the cube starts
-    flat = make_env("repose_cube", num_envs=16, seed=1, differentiable=False).base_env
+    flat = make_env("repose_cube", num_envs=16, seed=1, differentiable=False, rest_on_palm=False).base_env
     assert torch.equal(flat.reset()["task", "goal"][:, :3], start[:3].expand(16, 3))
 
 
@@ -137,3 +138,15 @@ def test_the_turn_breakdowns_recover_the_goals_angles_about_z_and_x():
     td = TensorDict({("task", "goal"): goal}, batch_size=[3])
     torch.testing.assert_close(env.breakdowns["goal_turn_z"](env, td), a.abs())
     torch.testing.assert_close(env.breakdowns["goal_turn_x"](env, td), b.abs())
+
+
+def test_a_cube_config_saved_before_the_default_changed_keeps_its_fixed_centre():
+    """Cube checkpoints saved before session 17 have no rest_on_palm and were trained with the centre fixed; other
+    tasks' saved configs are not given the cube's field."""
+    from dexmots_rl.envs import task_config
+    from dexmots_rl.envs.config import config_from_dict, saved_config_defaults
+
+    old = {k: v for k, v in dataclasses.asdict(task_config("repose_cube")).items() if k != "rest_on_palm"}
+    assert config_from_dict(type(task_config("repose_cube")), old).rest_on_palm is False
+    assert make_env(old, num_envs=1, seed=0, raw=True).config.rest_on_palm is False
+    assert "rest_on_palm" not in saved_config_defaults(type(task_config("screw_claw")))

@@ -142,3 +142,26 @@ def test_fd_gradient_through_contact(task):
             fd[0, i] = (loss(action + step) - loss(action - step)) / (2 * eps)
     scale = fd.abs().max().clamp_min(1e-9)
     assert ((grad - fd).abs().max() / scale) < 1e-4, (grad, fd)
+
+
+RECIPES = sorted((CONFIG_DIR / "recipe").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=[p.stem for p in RECIPES])
+def test_recipe_names_a_task_and_a_method_and_sets_only_algo(path):
+    """A recipe (configs/recipe/<task>_<algo>.yaml) is picked up by dexmots-train task=<task> algo=<algo>; it may
+    set the method's settings but never the task's, so make_env(task) stays the task that is trained."""
+    algos = {p.stem for p in (CONFIG_DIR / "algo").glob("*.yaml")}
+    matches = [(t, path.stem[len(t) + 1:]) for t in TASK_NAMES if path.stem.startswith(t + "_")]
+    assert len(matches) == 1 and matches[0][1] in algos, f"{path.name}: not <registered task>_<algo>"
+    task, algo = matches[0]
+    recipe = OmegaConf.load(path)
+    assert set(recipe) == {"algo"}
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"task={task}", f"algo={algo}"])
+        plain = compose("config", overrides=[f"task={task}", f"algo={algo}", "algo.iterations=7"])
+    for key, value in recipe.algo.items():
+        assert cfg.algo[key] == value
+    assert plain.algo.iterations == 7  # the command line wins over the recipe
+    default = OmegaConf.to_container(OmegaConf.create(dataclasses.asdict(task_config(task))))
+    assert OmegaConf.to_container(cfg.task, resolve=True) == default

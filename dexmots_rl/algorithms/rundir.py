@@ -16,7 +16,8 @@ import shutil
 from pathlib import Path
 
 from ..atomic import atomic_write, clean_stale_temps
-from ..envs.config import SAVED_CONFIG_DEFAULTS
+from ..envs.config import saved_config_defaults
+from ..envs.registry import list_tasks, task_entry
 from .checkpoint import CheckpointError
 
 __all__ = ["RUN_FILES", "RunDirLock", "holds_run", "prepare_fresh_run_dir", "truncate_logs", "resume_config"]
@@ -152,8 +153,9 @@ def resume_config(cfg, checkpoint: dict, source, overrides: list[str] | None):
     from omegaconf import OmegaConf
 
     saved = dict(checkpoint.get("config") or {})
-    if isinstance(saved.get("task"), dict):  # fields the saved task predates keep the task it trained on
-        saved["task"] = {**SAVED_CONFIG_DEFAULTS, **saved["task"]}
+    if isinstance(saved.get("task"), dict) and saved["task"].get("name") in list_tasks():
+        # fields the saved task predates keep the task it trained on
+        saved["task"] = {**saved_config_defaults(task_entry(saved["task"]["name"]).config_class), **saved["task"]}
     mine = OmegaConf.to_container(cfg, resolve=True)
     if overrides is None:
         keys = [k for section in LOCKED for k, _ in _leaves({section: mine.get(section)})]

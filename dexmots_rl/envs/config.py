@@ -25,7 +25,8 @@ from .actions import ACTION_TYPES
 from .rewards import RewardCoefficients
 from .transforms import GOAL_MODES
 
-__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict", "override_config"]
+__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict", "override_config",
+           "saved_config_defaults"]
 
 
 def check_number(name: str, value, low: float = 0.0, strict: bool = True) -> None:
@@ -100,15 +101,22 @@ def override_config(cfg: TaskConfig, overrides: dict[str, Any]) -> TaskConfig:
     return dataclasses.replace(cfg, **values).validate()
 
 
-# fields added after runs were saved, with the value that keeps a saved config's task what it trained on
-# (a field missing from a saved config otherwise takes today's default)
-SAVED_CONFIG_DEFAULTS = {"mirror": False}
+# fields added (or whose default changed) after runs were saved, with the value that keeps a saved config's task
+# what it trained on (a field missing from a saved config otherwise takes today's default); a task's own field
+# applies to the configs that have it
+SAVED_CONFIG_DEFAULTS = {"mirror": False, "rest_on_palm": False}
+
+
+def saved_config_defaults(cls) -> dict[str, Any]:
+    """The :data:`SAVED_CONFIG_DEFAULTS` that config class ``cls`` has."""
+    names = _field_names(cls)
+    return {k: v for k, v in SAVED_CONFIG_DEFAULTS.items() if k in names}
 
 
 def config_from_dict(cls, data: dict[str, Any]) -> TaskConfig:
     """Build a ``cls`` config from a plain dict (e.g. a checkpoint's or hydra's resolved ``task``); a field
     the dict predates takes its :data:`SAVED_CONFIG_DEFAULTS` value."""
-    return override_config(cls(), {**SAVED_CONFIG_DEFAULTS, **dict(data)})
+    return override_config(cls(), {**saved_config_defaults(cls), **dict(data)})
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,9 +8,9 @@ success" rule is not used). Success: the full 3-D rotation error ``2 asin(‖(q 
 ``success_threshold`` (0.1 rad; stricter than DexMOTS's 0.2 with z ignored) at the episode end. The
 cube moving more than ``fall_distance`` (0.24 m) from its goal position terminates the episode.
 
-Reference: the orientation slerps from the start to the goal over ``ramp_steps`` steps and the position
-stays where the cube starts (with ``rest_on_palm``, the goal's and the reference's centre rise with their tilt so
-that the turned cube's lowest corner stays on the horizontal palm); the reference wrench is the cube's weight
+Reference: the orientation slerps from the start to the goal over ``ramp_steps`` steps; the goal's and the
+reference's centre rise with their tilt so that the turned cube's lowest corner stays on the horizontal palm
+(``rest_on_palm``; off, the centre stays where the cube starts); the reference wrench is the cube's weight
 carried (``-m g``, no torque: a quasi-static rotation at this speed needs ~1e-4 N m). The measured wrench is the
 whole hand's push, palm included, so it matches the reference however hard the fingers squeeze or push against the palm's
 friction (it is the wrench planner's "external wrench besides gravity" too). Measured fingers-only, the
@@ -77,8 +77,9 @@ class ReposeCubeConfig(TaskConfig):
     precision_weight: float = 1.0  # weight of the sharp orientation term 0.1 / (θ + 0.1) (1 at zero error)
     position_penalty: float = 10.0  # 1/m: linear penalty on the cube's distance from the reference position
     drop_penalty: float = 20.0  # reward lost on the step the cube falls (the episode then terminates)
-    rest_on_palm: bool = False  # the goal's and the reference's centre rise with their tilt so that the turned cube
-    # still rests on the palm (a fixed centre puts a tilted cube's lower edge up to 1.3 cm into the palm)
+    rest_on_palm: bool = True  # the goal's and the reference's centre rise with their tilt so that the turned cube
+    # still rests on the palm (a fixed centre puts a tilted cube's lower edge up to 1.3 cm into the palm; False
+    # keeps the centre where the cube starts, the default before session 17)
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
 
