@@ -31,6 +31,52 @@ def test_a_dropped_cube_terminates_its_world_and_only_its_world(env):
     assert not out["info", "sim_failures"].any()
 
 
+def test_a_dropped_cube_is_no_success_even_turned_as_the_goal_asks(env):
+    td = env.reset()
+    q = td["sim", "joint_q"].clone()
+    q[1, 16] -= 0.3  # world 1 dropped, every cube still oriented as it started
+    td["sim", "joint_q"] = q
+    goal = td["task", "goal"].clone()
+    goal[:, 3:] = q[:, 19:23].to(goal.dtype)  # each goal: the cube's own orientation, so every cube is on its goal
+    td["task", "goal"] = goal
+    td["action"] = torch.zeros(3, env.action_spec.shape[-1])
+    out = env.step(td)["next"]
+    assert out["success"].squeeze(-1).tolist() == [True, False, True]
+
+
+def test_an_episode_that_terminated_is_no_success_in_the_evaluation(monkeypatch):
+    from dexmots_rl.algorithms.evaluation import evaluate_policy
+    from dexmots_rl.envs.tasks.allegro.repose import ReposeCubeEnv
+
+    # goal_angle 1e-3: every goal is (almost) the start, which the cube keeps under the rest action (zero)
+    task = {"name": "repose_cube", "max_episode_steps": 4, "goal_angle": 1e-3, "joint_noise": 0.0}
+    actor = _ZeroActor(make_env("repose_cube", num_envs=1).action_spec.shape[-1])
+    assert evaluate_policy(actor, task, episodes=4, seed=0)["success_rate"] == 1.0
+    calls = []
+
+    def world_0_terminates_at_step_2(self, obs):  # and is back in place (not terminated) for the last steps
+        calls.append(None)
+        ended = torch.zeros(obs[("object", "pose")].shape[0], 1, dtype=torch.bool)
+        ended[0] = len(calls) == 2
+        return ended
+
+    monkeypatch.setattr(ReposeCubeEnv, "task_terminated", world_0_terminates_at_step_2)
+    ev = evaluate_policy(actor, task, episodes=4, seed=0)
+    assert ev["success_rate"] == 0.75 and ev["success_rate_original_test"] == 0.75
+
+
+class _ZeroActor(torch.nn.Module):
+    """The rest action in every world (a TensorDict module for env.rollout)."""
+
+    def __init__(self, action_dim: int):
+        super().__init__()
+        self.action_dim = action_dim
+
+    def forward(self, td):
+        td.set("action", torch.zeros(*td.batch_size, self.action_dim))
+        return td
+
+
 def test_rotation_error_is_the_goal_error(env):
     base = env.base_env
     start = torch.tensor([[0.0, 0.0, 0.13, 1.0, 0.0, 0.0, 0.0]])

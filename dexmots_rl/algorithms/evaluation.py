@@ -2,8 +2,8 @@
 
 Every episode is one world of a non-differentiable env built from the checkpoint's task config, run for
 ``max_episode_steps`` steps with the deterministic policy (the tanh of the Gaussian's mean). Success is
-the task's success flag at the last step (screw_claw: final |θ − θ*| below 0.1 rad, the paper's ε_task);
-the final pose error is ``‖achieved_goal − goal‖`` at the last step; time to success is the first step
+the task's success flag at the last step (screw_claw: final |θ − θ*| below 0.1 rad, the paper's ε_task), in an
+episode that never terminated (repose_cube: the cube never dropped); the final pose error is ``‖achieved_goal − goal‖`` at the last step; time to success is the first step
 at which the flag was set, over the successful episodes. ``success_by_<name>`` breaks the success rate
 down by quartiles of each randomised parameter the task names (``DexEnv.breakdowns``, e.g. the knob's
 joint friction, or repose_cube's goal angle).
@@ -53,8 +53,10 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     success = nxt.get("success").squeeze(-1)  # [N, T]
     final_achieved, final_goal = nxt.get("achieved_goal")[:, -1], nxt.get(("task", "goal"))[:, -1]
     final_error = base.goal_error(final_achieved, final_goal)
-    won = success[:, -1]
-    kept = ~nxt.get("terminated").squeeze(-1).any(-1)  # [N]: no termination (e.g. a dropped object)
+    # [N]: no termination (a dropped cube may fall still turned as the goal asks; without a reset its world
+    # steps on, and a blown-up world is reset and may succeed from its fresh start): such an episode failed
+    kept = ~nxt.get("terminated").squeeze(-1).any(-1)
+    won = success[:, -1] & kept
     first = torch.where(success.any(-1), success.float().argmax(-1), torch.full_like(won, -1, dtype=torch.long))
     tts = (first[won] + 1).float() * base.sim.dt
     return {

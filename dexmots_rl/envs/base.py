@@ -357,7 +357,8 @@ class DexEnv(EnvBase):
             "reward": reward,
             ("task", "step"): step,
             ("info", "sim_failures"): failures,
-            "success": self.task_success(obs, obs[("task", "goal")]),
+            # a world that ends by termination (a dropped cube, a blow-up) has failed, whatever its orientation
+            "success": self.task_success(obs, obs[("task", "goal")]) & ~terminated,
             "terminated": terminated,
             "truncated": truncated,
             "done": terminated | truncated,
