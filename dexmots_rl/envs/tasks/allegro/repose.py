@@ -6,7 +6,7 @@ orientation is the start rotated by ``q_z(a) q_x(b)`` with ``a, b`` uniform in `
 q_x(±1 rad)·q_z(±1 rad) at the default 1 rad); one goal per episode (IsaacGymEnvs' "new goal on
 success" rule is not used). Success: the full 3-D rotation error ``2 asin(‖(q q_goal⁻¹)_xyz‖)`` ≤
 ``success_threshold`` (0.1 rad; stricter than DexMOTS's 0.2 with z ignored) at the episode end. The
-cube moving more than ``fall_distance`` (0.24 m) from its goal position terminates the episode.
+cube moving more than ``fall_distance`` (0.24 m) from its goal position terminates the episode, as a failure.
 
 Reference: the orientation slerps from the start to the goal over ``ramp_steps`` steps; the goal's and the
 reference's centre rise with their tilt so that the turned cube's lowest corner stays on the horizontal palm
