@@ -357,7 +357,7 @@ class DexEnv(EnvBase):
             "reward": reward,
             ("task", "step"): step,
             ("info", "sim_failures"): failures,
-            # a world that ends by termination (a dropped cube, a blow-up) has failed, whatever its orientation
+            # a world that ends by termination (a dropped cube, a blow-up) has failed, whatever the task's test says
             "success": self.task_success(obs, obs[("task", "goal")]) & ~terminated,
             "terminated": terminated,
             "truncated": truncated,
