@@ -5,9 +5,9 @@ Every episode is one world of a non-differentiable env built from the checkpoint
 the task's success flag at the last step (screw_claw: final |θ − θ*| below 0.1 rad, the paper's ε_task), in an
 episode that never terminated (repose_cube: the cube never dropped); the final pose error is
 ``‖achieved_goal − goal‖`` at the last step; time to success is the first step at which the flag was set,
-over the successful episodes. ``success_by_<name>`` breaks the success rate
-down by quartiles of each randomised parameter the task names (``DexEnv.breakdowns``, e.g. the knob's
-joint friction, or repose_cube's goal angle).
+over the successful episodes. ``success_by_<name>`` breaks the success rate down by quartiles of each
+randomised parameter the task names (``DexEnv.breakdowns``, e.g. the knob's joint friction, or repose_cube's
+goal angle).
 
 Example:
     >>> from omegaconf import OmegaConf
