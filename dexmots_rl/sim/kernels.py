@@ -275,8 +275,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         A = matJ3()  # joint axes (world)
         MB = matJJ1()  # the finger's [M | bias], summed over its links
         gen = vecJ()  # generalized forces of the base contacts
+        # the finger's joint state read once: every array read has its own atomic adjoint in the reverse pass
+        qf = vecJ()
         qdf = vecJ()
         for k in range(J):
+            qf[k] = q[r, f * J + k]
             qdf[k] = qd[r, f * J + k]
         for k in range(J):
             i = f * J + k
@@ -284,8 +287,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             x = x + R * fixed_vec3(m.off_pos, i)
             R = R * fixed_mat33(m.off_rot, i)
             a = R * fixed_vec3(m.axis, i)
-            qk = q[r, i]
-            qdk = qd[r, i]
+            qk = qf[k]
+            qdk = qdf[k]
             if wp.static(not HINGES_ONLY):
                 if jt != HINGE:
                     x = x + a * qk
@@ -342,13 +345,15 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         diag = matJ()
         for k in range(J):
             i = f * J + k
-            qk = q[r, i]
-            qdk = qd[r, i]
+            qk = qf[k]
+            qdk = qdf[k]
+            kpk = kp[w, i]
+            kdk = kd[w, i]
             # implicit PD drive, saturated smoothly at the motor's effort e: e tanh(drive / e), and its
             # implicit gain scaled by the saturation's slope (a stiff target far inside the object
             # otherwise asks for kp * error, ~10x what the motor can give)
-            drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
-            gain = dt * kd[w, i] + dt * dt * kp[w, i]
+            drive = kpk * (q_target[w, i] - qk - dt * qdk) - kdk * qdk
+            gain = dt * kdk + dt * dt * kpk
             effort = fixed(m.effort, i)
             if effort > dtype(0.0):
                 sat = wp.tanh(drive / effort)
@@ -366,9 +371,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             qdd = wp.inverse(M + diag) * rhs
         for k in range(J):
             i = f * J + k
-            v_new = qd[r, i] + dt * qdd[k]
+            v_new = qdf[k] + dt * qdd[k]
             qd[ro, i] = v_new
-            q[ro, i] = q[r, i] + dt * v_new
+            q[ro, i] = qf[k] + dt * v_new
         return vec7(f_obj[0], f_obj[1], f_obj[2], t_obj[0], t_obj[1], t_obj[2], cforce)
 
     # the kernel's reverse pass reads the finger's result back instead of re-running it (see contact_kernels);
