@@ -73,6 +73,9 @@ def test_readme_command_parses(argv, monkeypatch, capsys):
     script, args = argv[0], argv[1:]
     main = _entry_point(script)
     if script in HYDRA_APPS:
+        from hydra.core.global_hydra import GlobalHydra
+
+        GlobalHydra.instance().clear()  # another test's compose() may have left hydra initialised
         monkeypatch.setattr(sys, "argv", [script, *args, "--cfg", "job"])
         try:
             main()
