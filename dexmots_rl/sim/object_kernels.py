@@ -221,48 +221,53 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             # applied wrench: external (the hand, the planner) and the table
             f_app = vec3(ext[w, 6 * b + 0], ext[w, 6 * b + 1], ext[w, 6 * b + 2])
             t_app = vec3(ext[w, 6 * b + 3], ext[w, 6 * b + 4], ext[w, 6 * b + 5])
+            # the body's spatial inertia at its com, plus the table friction's implicit viscous part
+            # (dt cf P_t per contact, P_t the projection on the table's plane, moved to the com)
+            mb = m.mass[b]
+            Iw = R * m.inertia[b] * wp.transpose(R)
+            Kvv = mb * wp.identity(n=3, dtype=dtype)
+            Kvw = mat33()
+            Kww = Iw
             if wp.static(TABLE):
+                Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
+                           dtype(0.0), dtype(0.0), dtype(0.0))
                 for s in range(S):
                     rad = m.sample_radius[b, s]
                     if rad >= dtype(0.0):
                         ps = x + R * m.sample_pos[b, s]
                         pen = m.table_z + rad - ps[2]
                         if pen > dtype(-12.0) / m.beta:
-                            cpt = ps - vec3(dtype(0.0), dtype(0.0), rad)
-                            vp = vc + wp.cross(om, cpt - c)
+                            r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
+                            vp = vc + wp.cross(om, r)
                             fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vp[2], dtype(0.0))
                             vt = vec3(vp[0], vp[1], dtype(0.0))
                             cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
                             f = vec3(dtype(0.0), dtype(0.0), fn) - cf * vt
                             f_app = f_app + f
-                            t_app = t_app + wp.cross(cpt - c, f)
-                            # the friction's viscous part enters the matrix (linearly implicit): dt cf J^T P J,
-                            # J the contact point's velocity Jacobian, P the projection on the table's plane
-                            Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
-                                       dtype(0.0), dtype(0.0), dtype(0.0))
+                            t_app = t_app + wp.cross(r, f)
+                            # the point's velocity is V - [r]x w: its friction damping g P_t seen at the com
                             g = dt * cf
-                            JR = -wp.skew(cpt - x0)
-                            JP = Jv - wp.skew(cpt - c) * Jw
-                            M11 = M11 + g * Pt
-                            M12 = M12 + g * Pt * JR
-                            M13 = M13 + g * Pt * JP
-                            M22 = M22 + g * wp.transpose(JR) * Pt * JR
-                            M23 = M23 + g * wp.transpose(JR) * Pt * JP
-                            M33 = M33 + g * wp.transpose(JP) * Pt * JP
-            # inertial minus applied wrench
-            mb = m.mass[b]
-            Iw = R * m.inertia[b] * wp.transpose(R)
+                            Sr = wp.skew(r)
+                            Kvv = Kvv + g * Pt
+                            Kvw = Kvw - g * Pt * Sr
+                            Kww = Kww - g * Sr * Pt * Sr
+            Kwv = wp.transpose(Kvw)
+            # inertial minus applied wrench, and the body's share of the matrix, block by block
             F = mb * (ac - m.gravity) - f_app
             T = Iw * al + wp.cross(om, Iw * om) - t_app
             r3 = r3 - (wp.transpose(Jv) * F + wp.transpose(Jw) * T)
-            M33 = M33 + mb * wp.transpose(Jv) * Jv + wp.transpose(Jw) * Iw * Jw
+            KJ_v = Kvv * Jv + Kvw * Jw  # the body's [V; w] rows times its joint columns
+            KJ_w = Kwv * Jv + Kww * Jw
+            M33 = M33 + wp.transpose(Jv) * KJ_v + wp.transpose(Jw) * KJ_w
             if wp.static(FREE):
                 JR = -wp.skew(c - x0)  # com velocity per unit base angular velocity
-                M11 = M11 + mb * wp.identity(n=3, dtype=dtype)
-                M12 = M12 + mb * JR
-                M13 = M13 + mb * Jv
-                M22 = M22 + mb * wp.transpose(JR) * JR + Iw
-                M23 = M23 + mb * wp.transpose(JR) * Jv + Iw * Jw
+                KR_v = Kvv * JR + Kvw
+                KR_w = Kwv * JR + Kww
+                M11 = M11 + Kvv
+                M12 = M12 + KR_v
+                M13 = M13 + KJ_v
+                M22 = M22 + wp.transpose(JR) * KR_v + KR_w
+                M23 = M23 + wp.transpose(JR) * KJ_v + KJ_w
                 r1 = r1 - F
                 r2 = r2 - (wp.cross(c - x0, F) + T)
         # joints: springs, dampers, friction and range stops, linearised at the predicted position

@@ -31,7 +31,7 @@ from .mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 __all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS"]
 
 MAX_PARTS = 4
-MAX_SAMPLES = 16  # table-contact samples per body
+MAX_SAMPLES = 12  # table-contact samples per body (each is unrolled in the kernel and its adjoint)
 HINGE, SLIDE = 0, 1
 # per-joint physical parameters, by name: ("sim", "params", "<joint>/<name>") in the env's TensorDict
 JOINT_PARAMS = ("damping", "friction", "stiffness", "rest")
