@@ -1,0 +1,242 @@
+"""The PartNet-Mobility-style URDF loader, on folders the tests write (see tests/partnet_fixtures.py).
+
+The kinematics are checked against MuJoCo's own compilation of the original URDF: at several joint positions,
+every joint's anchor and axis in the world, and every part's drawn bounding box, must be the original's scaled
+by the loader's factor and moved by its offset.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import partnet_fixtures as fx
+from dexmots_rl.assets.objects import ObjectError
+from dexmots_rl.assets.objects.urdf import CONTINUOUS_RANGE, DEFAULT_SIZE, HINGE_DEFAULTS, MIN_HALF_EXTENT, UrdfError, load_urdf
+
+ANCHOR_TOL = 1e-6  # m, after scaling to ~0.2 m
+# m: the drawn hulls keep every piece's extreme points (float32 in MuJoCo's mesh store); flat pieces are
+# drawn MIN_HALF_EXTENT thicker on each side
+BOX_TOL = MIN_HALF_EXTENT + 1e-5
+
+
+def compile_original(urdf: Path) -> mujoco.MjModel:
+    text = urdf.read_text()
+    keep = (f'<mujoco><compiler discardvisual="false" fusestatic="false" strippath="false" '
+            f'meshdir="{urdf.parent}"/></mujoco>')
+    text = re.sub(r"(<robot[^>]*>)", lambda m: m.group(1) + keep, text, count=1)
+    spec = mujoco.MjSpec.from_string(text)
+    for geom in list(spec.geoms):  # only the kinematics and the drawn pieces are compared; MuJoCo cannot
+        if geom.contype or geom.conaffinity:  # take a flat piece as a collision mesh
+            spec.delete(geom)
+    for mesh in spec.meshes:  # open and flat pieces have no volume: weigh their surface instead
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+    spec.compiler.boundmass, spec.compiler.boundinertia = 1e-3, 1e-6  # drawn geoms weigh nothing
+    return spec.compile()
+
+
+def compile_ours(asset, mesh_dir: Path) -> mujoco.MjModel:
+    assets, body = asset.mjcf(mesh_dir)
+    return mujoco.MjModel.from_xml_string(
+        f'<mujoco><asset>\n{assets}</asset><worldbody>\n'
+        f'    <geom name="table" type="plane" size="1 1 0.01"/>\n{body}</worldbody></mujoco>')
+
+
+def visual_boxes(model, data, owner) -> dict[str, np.ndarray]:
+    """World bounding box (2, 3) of the drawn (group 1) mesh geoms, per part (``owner(body id)``)."""
+    out: dict[str, list] = {}
+    for g in range(model.ngeom):
+        if model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or model.geom_group[g] != 1:
+            continue
+        mesh = model.geom_dataid[g]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        verts = data.geom_xpos[g] + model.mesh_vert[start:start + count] @ data.geom_xmat[g].reshape(3, 3).T
+        out.setdefault(owner(model.geom_bodyid[g]), []).append(verts)
+    return {part: np.array([np.concatenate(v).min(axis=0), np.concatenate(v).max(axis=0)])
+            for part, v in out.items()}
+
+
+def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.35, 1.0)) -> None:
+    original, ours = compile_original(urdf), compile_ours(asset, tmp_path / "meshes")
+    d_orig, d_ours = mujoco.MjData(original), mujoco.MjData(ours)
+    factor = asset.params["scale"]
+    origin = np.array([asset.params[f"urdf_origin_{a}"] for a in "xyz"])
+    part_names = [p.name for p in asset.parts]
+
+    def original_owner(body: int) -> str:
+        while original.body(body).name not in part_names[1:] and original.body_parentid[body] != 0:
+            body = original.body_parentid[body]
+        name = original.body(body).name
+        return name if name in part_names[1:] else part_names[0]
+
+    def our_owner(body: int) -> str:
+        name = ours.body(body).name
+        return part_names[0] if name == "object" else name.split("/", 1)[1]
+
+    for fraction in positions:
+        for joint in asset.joints:
+            low, high = joint.range
+            q = low + fraction * (high - low)
+            original_q = q / factor if joint.kind == "slide" else q
+            d_orig.qpos[original.joint(joint.name).qposadr[0]] = original_q
+            d_ours.qpos[ours.joint(joint.name).qposadr[0]] = q
+        if asset.base == "free":
+            d_ours.qpos[3] = 1.0
+        mujoco.mj_kinematics(original, d_orig)
+        mujoco.mj_kinematics(ours, d_ours)
+        for joint in asset.joints:
+            a, b = original.joint(joint.name).id, ours.joint(joint.name).id
+            np.testing.assert_allclose(d_ours.xanchor[b], origin + factor * d_orig.xanchor[a], atol=ANCHOR_TOL)
+            np.testing.assert_allclose(d_ours.xaxis[b], d_orig.xaxis[a], atol=1e-9)
+        expected, got = visual_boxes(original, d_orig, original_owner), visual_boxes(ours, d_ours, our_owner)
+        assert sorted(got) == sorted(expected) and set(got) <= set(part_names)
+        for part, box in got.items():
+            np.testing.assert_allclose(box, origin + factor * expected[part], atol=BOX_TOL, err_msg=part)
+
+
+def check_asset(asset, max_geoms: int = 4) -> None:
+    asset.validate()
+    for part in asset.parts:
+        assert 1 <= len(part.geoms) <= max_geoms
+        assert all(g.kind in ("box", "sphere") and g.mass > 0 for g in part.geoms)
+        assert part.visual is None or asset.meshes[part.visual].is_watertight
+
+
+def test_stapler_lid_on_a_hinge(tmp_path):
+    urdf = fx.stapler(tmp_path / "100001")
+    asset = load_urdf(urdf)
+    check_asset(asset)
+    assert asset.name == "100001" and asset.object_class == "stapler" and asset.base == "free"
+    assert [p.name for p in asset.parts] == ["base", "link_0"]
+    lid = asset.joint("joint_0")
+    assert lid.kind == "hinge" and lid.range == (0.0, 0.45) and asset.operated_joint == "joint_0"
+    assert (lid.damping, lid.friction, lid.stiffness) == (HINGE_DEFAULTS["damping"], HINGE_DEFAULTS["friction"], 0)
+    assert "lid" in asset.description
+    check_against_original(urdf, asset, tmp_path)
+    # the object stands on the table (z = 0), centred, at the default size
+    model = compile_ours(asset, tmp_path / "m2")
+    data = mujoco.MjData(model)
+    data.qpos[3] = 1.0
+    mujoco.mj_kinematics(model, data)
+    box = np.array([b for b in visual_boxes(model, data, lambda body: "all").values()])[0]
+    assert box[0, 2] == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose((box[0, :2] + box[1, :2]) / 2, 0.0, atol=1e-6)
+    assert np.max(box[1] - box[0]) == pytest.approx(DEFAULT_SIZE, rel=1e-5)
+    masses = model.body_subtreemass[model.body("object").id]
+    assert masses == pytest.approx(sum(g.mass for p in asset.parts for g in p.geoms))
+
+
+@pytest.mark.parametrize("size", [0.12, 0.2])
+def test_unit_normalised_object_scaled_to_the_target_size(tmp_path, size):
+    urdf = fx.stapler(tmp_path / "100002")
+    asset = load_urdf(urdf, size=size, base="fixed")
+    model = compile_ours(asset, tmp_path / "m")
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    box = visual_boxes(model, data, lambda body: "all")["all"]
+    assert np.max(box[1] - box[0]) == pytest.approx(size, rel=1e-5)
+    assert asset.params["size"] == pytest.approx(size)
+    by_factor = load_urdf(urdf, scale=0.1)
+    assert by_factor.params["scale"] == 0.1
+    assert by_factor.params["size"] == pytest.approx(0.1 * size / asset.params["scale"])
+
+
+def test_prismatic_drawer(tmp_path):
+    urdf = fx.drawer(tmp_path / "200001")
+    asset = load_urdf(urdf, size=0.2, base="fixed", max_geoms_per_part=2)
+    check_asset(asset, max_geoms=2)
+    slide = asset.joint("joint_0")
+    assert slide.kind == "slide"
+    assert slide.range == pytest.approx((0.0, 0.5 * asset.params["scale"]))
+    assert (slide.damping, slide.friction) == (2.5, 0.1)  # <dynamics> read
+    check_against_original(urdf, asset, tmp_path)
+
+
+def test_two_revolute_parts_like_scissors(tmp_path):
+    urdf = fx.scissors(tmp_path / "300001")
+    asset = load_urdf(urdf, base="fixed")
+    check_asset(asset)
+    assert [(p.name, p.parent) for p in asset.parts] == [("base", None), ("link_1", "base"), ("link_0", "link_1")]
+    assert asset.parts[0].geoms[0].kind == "sphere"  # the empty base link is the pivot pin
+    check_against_original(urdf, asset, tmp_path, positions=(0.0, 0.2, 0.9))
+
+
+def test_fixed_chain_merges_into_its_parent(tmp_path):
+    urdf = fx.lever_on_fixed_chain(tmp_path / "400001")
+    asset = load_urdf(urdf)
+    check_asset(asset)
+    assert [(p.name, p.parent) for p in asset.parts] == [("base", None), ("link_0", "base")]
+    check_against_original(urdf, asset, tmp_path)  # the merged cap and knob are drawn where the URDF puts them
+
+
+def test_continuous_joint_gets_one_turn(tmp_path):
+    urdf = fx.knob(tmp_path / "500001")
+    asset = load_urdf(urdf, base="fixed")
+    check_asset(asset)
+    assert asset.joint("joint_0").range == CONTINUOUS_RANGE
+    check_against_original(urdf, asset, tmp_path, positions=(0.1, 0.6, 0.9))
+
+
+def test_more_than_four_moving_parts_keeps_four(tmp_path, caplog):
+    urdf = fx.keyboard(tmp_path / "600001", keys=6)
+    with caplog.at_level(logging.WARNING):
+        asset = load_urdf(urdf, base="fixed")
+    assert [j.name for j in asset.joints] == ["joint_1", "joint_2", "joint_3", "joint_4"]
+    assert "6 moving joints" in caplog.text and "joint_5" in caplog.text and "joint_6" in caplog.text
+    check_against_original(urdf, asset, tmp_path, positions=(0.0,))
+    chosen = load_urdf(urdf, base="fixed", operated_joint="joint_6")
+    assert chosen.operated_joint == "joint_6" and "joint_6" in [j.name for j in chosen.joints]
+
+
+def _mutate(text: str, old: str, new: str) -> str:
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+BAD_FILES = {
+    "limit lower > upper": (lambda t: _mutate(t, 'lower="0" upper="0.45"', 'lower="2.0" upper="1.0"'),
+                            "joint 'joint_0': <limit> lower 2 > upper 1"),
+    "unknown joint type": (lambda t: _mutate(t, 'type="revolute"', 'type="planar"'),
+                           "joint 'joint_0': joint type 'planar' is not supported"),
+    "link cycle": (lambda t: _mutate(t, '<parent link="base"/>', '<parent link="link_0"/>'),
+                   "form a cycle"),
+    "not XML": (lambda t: t[: len(t) // 2], "not well-formed XML"),
+    "missing limit": (lambda t: _mutate(t, '<limit lower="0" upper="0.45"/>', ""),
+                      "joint 'joint_0': a revolute joint needs <limit"),
+    "unknown link": (lambda t: _mutate(t, '<child link="link_0"/>', '<child link="link_9"/>'),
+                     "joint 'joint_0': <child link='link_9'> names no <link>"),
+    "bad origin": (lambda t: _mutate(t, 'rpy="0 0 0"', 'rpy="0 zero 0"'), "joint 'joint_0' <origin rpy>"),
+    "missing mesh": (lambda t: _mutate(t, "original-3.obj", "original-99.obj"),
+                     "link 'link_0' <visual> <mesh filename='textured_objs/original-99.obj'>: no such file"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_bad_file_names_the_file_and_the_element(tmp_path, case):
+    urdf = fx.stapler(tmp_path / "700001")
+    mutate, message = BAD_FILES[case]
+    urdf.write_text(mutate(urdf.read_text()))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    with pytest.raises(UrdfError) as error:
+        load_urdf(urdf)
+    assert str(urdf) in str(error.value) and message in str(error.value), str(error.value)
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # nothing written
+
+
+def test_bad_arguments(tmp_path):
+    urdf = fx.stapler(tmp_path / "800001")
+    with pytest.raises(ObjectError, match="scale or size"):
+        load_urdf(urdf, scale=0.1, size=0.2)
+    with pytest.raises(ObjectError, match="density"):
+        load_urdf(urdf, density=-1.0)
+    with pytest.raises(UrdfError, match="operated_joint 'joint_9'"):
+        load_urdf(urdf, operated_joint="joint_9")
+    with pytest.raises(UrdfError, match="cannot be read"):
+        load_urdf(tmp_path / "missing" / "mobility.urdf")
+    assert math.isfinite(load_urdf(urdf, density=100.0).parts[0].geoms[0].mass)
