@@ -47,11 +47,14 @@ class PartNetFolder:
         self.semantics: list[str] = []
         self.pieces = 0
 
-    def link(self, name: str, pieces, pivot=(0.0, 0.0, 0.0), label: str = "", kind: str = "static"):
-        """A link made of ``pieces`` (object coordinates) whose frame sits at ``pivot``."""
+    def link(self, name: str, pieces, pivot=(0.0, 0.0, 0.0), label: str = "", kind: str = "static",
+             scale: str | None = None):
+        """A link made of ``pieces`` (object coordinates, or ``<mesh scale>``-scaled ones) whose frame sits
+        at ``pivot``."""
         self.pivots[name] = np.asarray(pivot, dtype=float)
         elements = []
         undo = " ".join(f"{-x:.9g}" for x in pivot)
+        scaled = f' scale="{scale}"' if scale else ""
         for mesh in pieces:
             self.pieces += 1
             file = f"textured_objs/original-{self.pieces}.obj"
@@ -59,7 +62,7 @@ class PartNetFolder:
             for tag in ("visual", "collision"):
                 named = f' name="{name}-{self.pieces}"' if tag == "visual" else ""
                 elements.append(f'    <{tag}{named}><origin xyz="{undo}"/>'
-                                f'<geometry><mesh filename="{file}"/></geometry></{tag}>')
+                                f'<geometry><mesh filename="{file}"{scaled}/></geometry></{tag}>')
         self.links[name] = elements
         self.semantics.append(f"{name} {kind} {label or name}")
         return self
@@ -129,13 +132,14 @@ def scissors(root: Path) -> Path:
 
 
 def lever_on_fixed_chain(root: Path) -> Path:
-    """A body, a cap fixed on it at an angle, a lever hinged on the cap, a knob fixed on the lever."""
+    """A body, a cap fixed on it at an angle, a lever hinged on the cap, a knob (a scaled mesh) fixed on the
+    lever."""
     return (PartNetFolder(root, "Faucet")
             .link("link_1", [box((0.3, 0.6, 0.3), (0, 0.3, 0))])
             .link("link_2", [box((0.2, 0.1, 0.2), (0, 0.65, 0))], pivot=(0, 0.6, 0))
             .link("link_0", [box((0.6, 0.05, 0.08), (0.3, 0.72, 0))], pivot=(0, 0.7, 0), kind="hinge",
                   label="lever")
-            .link("link_3", [box((0.1, 0.1, 0.1), (0.6, 0.75, 0))], pivot=(0.6, 0.7, 0))
+            .link("link_3", [box((0.1, 0.1, 0.1), (0.3, 0.75, 0))], pivot=(0.6, 0.7, 0), scale="2 1 1.5")
             .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)
             .joint("joint_2", "fixed", "link_1", "link_2", rpy="0 0.4 0")
             .joint("joint_0", "revolute", "link_2", "link_0", axis=(0, 0, 1), limit=(-0.2, 0.7),
@@ -156,11 +160,13 @@ def knob(root: Path) -> Path:
 
 
 def keyboard(root: Path, keys: int = 5) -> Path:
-    """A board with ``keys`` keys on prismatic joints (more than an object can move)."""
+    """A board with ``keys`` keys on prismatic joints (more than an object can move); the last key is stuck
+    half-way down (lower == upper)."""
     folder = PartNetFolder(root, "Keyboard").link("link_0", [box((1.0, 0.1, 0.4), (0, 0.05, 0))])
     folder.joint("joint_0", "fixed", "base", "link_0", rpy=Y_UP_TO_Z_UP)
     for k in range(1, keys + 1):
         x = -0.45 + 0.18 * k
         folder.link(f"link_{k}", [box((0.12, 0.05, 0.12), (x, 0.125, 0))], pivot=(x, 0.1, 0), kind="slider")
-        folder.joint(f"joint_{k}", "prismatic", "link_0", f"link_{k}", axis=(0, -1, 0), limit=(0, 0.02))
+        limit = (0.05, 0.05) if k == keys else (0, 0.02)
+        folder.joint(f"joint_{k}", "prismatic", "link_0", f"link_{k}", axis=(0, -1, 0), limit=limit)
     return folder.write()

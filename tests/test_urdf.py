@@ -1,8 +1,8 @@
 """The PartNet-Mobility-style URDF loader, on folders the tests write (see tests/partnet_fixtures.py).
 
 The kinematics are checked against MuJoCo's own compilation of the original URDF: at several joint positions,
-every joint's anchor and axis in the world, and every part's drawn bounding box, must be the original's scaled
-by the loader's factor and moved by its offset.
+every joint's anchor and axis in the world, and every part's drawn extent along 26 directions, must be the
+original's scaled by the loader's factor and moved by its offset.
 """
 
 from __future__ import annotations
@@ -21,9 +21,8 @@ from dexmots_rl.assets.objects import ObjectError
 from dexmots_rl.assets.objects.urdf import CONTINUOUS_RANGE, DEFAULT_SIZE, HINGE_DEFAULTS, MIN_HALF_EXTENT, UrdfError, load_urdf
 
 ANCHOR_TOL = 1e-6  # m, after scaling to ~0.2 m
-# m: the drawn hulls keep every piece's extreme points (float32 in MuJoCo's mesh store); flat pieces are
-# drawn MIN_HALF_EXTENT thicker on each side
-BOX_TOL = MIN_HALF_EXTENT + 1e-5
+EXTENT_TOL = 1e-5  # m: the drawn hulls keep every piece's extreme points (float32 in MuJoCo's mesh store)
+FLAT_EXTENT_TOL = EXTENT_TOL + MIN_HALF_EXTENT * math.sqrt(3)  # flat pieces are drawn thickened on both sides
 
 
 def compile_original(urdf: Path) -> mujoco.MjModel:
@@ -48,8 +47,8 @@ def compile_ours(asset, mesh_dir: Path) -> mujoco.MjModel:
         f'    <geom name="table" type="plane" size="1 1 0.01"/>\n{body}</worldbody></mujoco>')
 
 
-def visual_boxes(model, data, owner) -> dict[str, np.ndarray]:
-    """World bounding box (2, 3) of the drawn (group 1) mesh geoms, per part (``owner(body id)``)."""
+def visual_points(model, data, owner) -> dict[str, np.ndarray]:
+    """World vertices of the drawn (group 1) mesh geoms, per part (``owner(body id)``)."""
     out: dict[str, list] = {}
     for g in range(model.ngeom):
         if model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or model.geom_group[g] != 1:
@@ -58,13 +57,25 @@ def visual_boxes(model, data, owner) -> dict[str, np.ndarray]:
         start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
         verts = data.geom_xpos[g] + model.mesh_vert[start:start + count] @ data.geom_xmat[g].reshape(3, 3).T
         out.setdefault(owner(model.geom_bodyid[g]), []).append(verts)
-    return {part: np.array([np.concatenate(v).min(axis=0), np.concatenate(v).max(axis=0)])
-            for part, v in out.items()}
+    return {part: np.concatenate(v) for part, v in out.items()}
 
 
-def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.35, 1.0)) -> None:
+def bounding_box(points: np.ndarray) -> np.ndarray:
+    return np.array([points.min(axis=0), points.max(axis=0)])
+
+
+# the 26 directions to the faces, edges and corners of a cube: a part's extent along each (its support)
+DIRECTIONS = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], dtype=float) - 1.0
+DIRECTIONS /= np.linalg.norm(DIRECTIONS, axis=1, keepdims=True)
+
+
+def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.35, 1.0), welded=None,
+                           extent_tol=EXTENT_TOL) -> None:
+    """``welded``: the original's positions of the joints the loader welded."""
     original, ours = compile_original(urdf), compile_ours(asset, tmp_path / "meshes")
     d_orig, d_ours = mujoco.MjData(original), mujoco.MjData(ours)
+    for name, q in (welded or {}).items():
+        d_orig.qpos[original.joint(name).qposadr[0]] = q
     factor = asset.params["scale"]
     origin = np.array([asset.params[f"urdf_origin_{a}"] for a in "xyz"])
     part_names = [p.name for p in asset.parts]
@@ -94,10 +105,12 @@ def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.
             a, b = original.joint(joint.name).id, ours.joint(joint.name).id
             np.testing.assert_allclose(d_ours.xanchor[b], origin + factor * d_orig.xanchor[a], atol=ANCHOR_TOL)
             np.testing.assert_allclose(d_ours.xaxis[b], d_orig.xaxis[a], atol=1e-9)
-        expected, got = visual_boxes(original, d_orig, original_owner), visual_boxes(ours, d_ours, our_owner)
+        expected, got = visual_points(original, d_orig, original_owner), visual_points(ours, d_ours, our_owner)
         assert sorted(got) == sorted(expected) and set(got) <= set(part_names)
-        for part, box in got.items():
-            np.testing.assert_allclose(box, origin + factor * expected[part], atol=BOX_TOL, err_msg=part)
+        for part, points in got.items():
+            support = (points @ DIRECTIONS.T).max(axis=0)
+            expected_support = ((origin + factor * expected[part]) @ DIRECTIONS.T).max(axis=0)
+            np.testing.assert_allclose(support, expected_support, atol=extent_tol, err_msg=part)
 
 
 def check_asset(asset, max_geoms: int = 4) -> None:
@@ -118,13 +131,13 @@ def test_stapler_lid_on_a_hinge(tmp_path):
     assert lid.kind == "hinge" and lid.range == (0.0, 0.45) and asset.operated_joint == "joint_0"
     assert (lid.damping, lid.friction, lid.stiffness) == (HINGE_DEFAULTS["damping"], HINGE_DEFAULTS["friction"], 0)
     assert "lid" in asset.description
-    check_against_original(urdf, asset, tmp_path)
+    check_against_original(urdf, asset, tmp_path, extent_tol=FLAT_EXTENT_TOL)  # the stapler has a flat piece
     # the object stands on the table (z = 0), centred, at the default size
     model = compile_ours(asset, tmp_path / "m2")
     data = mujoco.MjData(model)
     data.qpos[3] = 1.0
     mujoco.mj_kinematics(model, data)
-    box = np.array([b for b in visual_boxes(model, data, lambda body: "all").values()])[0]
+    box = bounding_box(visual_points(model, data, lambda body: "all")["all"])
     assert box[0, 2] == pytest.approx(0.0, abs=1e-6)
     np.testing.assert_allclose((box[0, :2] + box[1, :2]) / 2, 0.0, atol=1e-6)
     assert np.max(box[1] - box[0]) == pytest.approx(DEFAULT_SIZE, rel=1e-5)
@@ -139,7 +152,7 @@ def test_unit_normalised_object_scaled_to_the_target_size(tmp_path, size):
     model = compile_ours(asset, tmp_path / "m")
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
-    box = visual_boxes(model, data, lambda body: "all")["all"]
+    box = bounding_box(visual_points(model, data, lambda body: "all")["all"])
     assert np.max(box[1] - box[0]) == pytest.approx(size, rel=1e-5)
     assert asset.params["size"] == pytest.approx(size)
     by_factor = load_urdf(urdf, scale=0.1)
@@ -184,12 +197,13 @@ def test_continuous_joint_gets_one_turn(tmp_path):
 
 
 def test_more_than_four_moving_parts_keeps_four(tmp_path, caplog):
-    urdf = fx.keyboard(tmp_path / "600001", keys=6)
+    urdf = fx.keyboard(tmp_path / "600001", keys=7)
     with caplog.at_level(logging.WARNING):
         asset = load_urdf(urdf, base="fixed")
     assert [j.name for j in asset.joints] == ["joint_1", "joint_2", "joint_3", "joint_4"]
-    assert "6 moving joints" in caplog.text and "joint_5" in caplog.text and "joint_6" in caplog.text
-    check_against_original(urdf, asset, tmp_path, positions=(0.0,))
+    assert "6 moving joints" in caplog.text and "['joint_5', 'joint_6'] welded" in caplog.text
+    assert "joint 'joint_7' has lower == upper (0.05): welded" in caplog.text
+    check_against_original(urdf, asset, tmp_path, positions=(0.0, 1.0), welded={"joint_7": 0.05})
     chosen = load_urdf(urdf, base="fixed", operated_joint="joint_6")
     assert chosen.operated_joint == "joint_6" and "joint_6" in [j.name for j in chosen.joints]
 
