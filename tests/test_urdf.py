@@ -111,6 +111,17 @@ def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.
             support = (points @ DIRECTIONS.T).max(axis=0)
             expected_support = ((origin + factor * expected[part]) @ DIRECTIONS.T).max(axis=0)
             np.testing.assert_allclose(support, expected_support, atol=extent_tol, err_msg=part)
+            assert_inside_boxes(ours, d_ours, origin + factor * expected[part], part, asset.parts[0].name)
+
+
+def assert_inside_boxes(model, data, points: np.ndarray, part: str, base: str) -> None:
+    """Every point of the part's pieces lies in one of its collision boxes (flat pieces are thickened)."""
+    body = model.body("object" if part == base else f"object/{part}").id
+    inside = np.zeros(len(points), dtype=bool)
+    for g in np.flatnonzero((model.geom_bodyid == body) & (model.geom_type == mujoco.mjtGeom.mjGEOM_BOX)):
+        local = (points - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+        inside |= np.all(np.abs(local) <= model.geom_size[g] + 1e-6, axis=1)
+    assert inside.all(), f"{part}: {np.count_nonzero(~inside)} of {len(points)} mesh points outside its boxes"
 
 
 def check_asset(asset, max_geoms: int = 4) -> None:
@@ -143,6 +154,19 @@ def test_stapler_lid_on_a_hinge(tmp_path):
     assert np.max(box[1] - box[0]) == pytest.approx(DEFAULT_SIZE, rel=1e-5)
     masses = model.body_subtreemass[model.body("object").id]
     assert masses == pytest.approx(sum(g.mass for p in asset.parts for g in p.geoms))
+
+
+def test_free_base_rests_on_the_table(tmp_path):
+    asset = load_urdf(fx.stapler(tmp_path / "100003"), size=0.15)
+    model = compile_ours(asset, tmp_path / "m")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = data.xpos[model.body("object").id].copy()
+    while data.time < 1.0:
+        mujoco.mj_step(model, data)
+    moved = data.xpos[model.body("object").id] - start
+    assert np.all(np.isfinite(data.qpos)) and np.linalg.norm(moved) < 2e-3, moved
+    assert data.qpos[7] == pytest.approx(0.0, abs=0.05)  # the arm rests on the base, not fallen through
 
 
 @pytest.mark.parametrize("size", [0.12, 0.2])
