@@ -58,7 +58,11 @@ class PartNetFolder:
         for mesh in pieces:
             self.pieces += 1
             file = f"textured_objs/original-{self.pieces}.obj"
-            mesh.export(self.root / file)
+            # as in the data set: a material library whose texture image is not there
+            (self.root / file).with_suffix(".mtl").write_text(
+                f"newmtl material_{self.pieces}\nKd 0.8 0.8 0.8\nmap_Kd ../images/texture_{self.pieces}.png\n")
+            (self.root / file).write_text(f"mtllib original-{self.pieces}.mtl\nusemtl material_{self.pieces}\n"
+                                          + trimesh.exchange.obj.export_obj(mesh, include_normals=False))
             for tag in ("visual", "collision"):
                 named = f' name="{name}-{self.pieces}"' if tag == "visual" else ""
                 elements.append(f'    <{tag}{named}><origin xyz="{undo}"/>'

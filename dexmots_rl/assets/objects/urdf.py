@@ -130,14 +130,17 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
     object_class, labels = _read_metadata(folder)
     name = _safe(folder.name if path.name == "mobility.urdf" and folder.name else path.stem)
     described = ", ".join(f"{p}" + (f" ({labels[p]})" if p in labels else "") for p in layout.parts)
-    return ObjectAsset(
-        name=name, object_class=object_class, parts=tuple(parts), base=base,
-        operated_joint=_safe(operated.name) if operated else None, grasp=_vec(grasp),
-        params={"scale": factor, "size": factor * longest, "density": float(density),
-                "urdf_origin_x": float(origin[0]), "urdf_origin_y": float(origin[1]),
-                "urdf_origin_z": float(origin[2])},
-        meshes=meshes,
-        description=f"{object_class} loaded from {path} (parts: {described}; scale {factor:.4g})")
+    try:
+        return ObjectAsset(
+            name=name, object_class=object_class, parts=tuple(parts), base=base,
+            operated_joint=_safe(operated.name) if operated else None, grasp=_vec(grasp),
+            params={"scale": factor, "size": factor * longest, "density": float(density),
+                    "urdf_origin_x": float(origin[0]), "urdf_origin_y": float(origin[1]),
+                    "urdf_origin_z": float(origin[2])},
+            meshes=meshes,
+            description=f"{object_class} loaded from {path} (parts: {described}; scale {factor:.4g})")
+    except ObjectError as error:  # e.g. two link names that differ only in characters MJCF names cannot hold
+        raise UrdfError(f"{where}: {error}") from None
 
 
 def _check_arguments(scale, size, density, base, max_geoms_per_part) -> None:
