@@ -18,7 +18,7 @@ import pytest
 
 import partnet_fixtures as fx
 from dexmots_rl.assets.objects import ObjectError
-from dexmots_rl.assets.objects.urdf import CONTINUOUS_RANGE, DEFAULT_SIZE, HINGE_DEFAULTS, MIN_HALF_EXTENT, UrdfError, load_urdf
+from dexmots_rl.assets.objects.urdf import CONTINUOUS_RANGE, DEFAULT_DENSITY, DEFAULT_SIZE, HINGE_DEFAULTS, MIN_HALF_EXTENT, UrdfError, load_urdf
 
 ANCHOR_TOL = 1e-6  # m, after scaling to ~0.2 m
 EXTENT_TOL = 1e-5  # m: the drawn hulls keep every piece's extreme points (float32 in MuJoCo's mesh store)
@@ -220,6 +220,19 @@ def test_continuous_joint_gets_one_turn(tmp_path):
     check_against_original(urdf, asset, tmp_path, positions=(0.1, 0.6, 0.9))
 
 
+def test_hull_collision(tmp_path):
+    urdf = fx.knob(tmp_path / "500002")
+    asset = load_urdf(urdf, collision="hull")
+    for part in asset.parts:
+        (geom,) = part.geoms
+        hull = asset.meshes[geom.mesh]
+        assert geom.kind == "mesh" and hull.is_watertight and hull.is_convex
+        assert geom.mass == pytest.approx(DEFAULT_DENSITY * hull.volume)
+    model = compile_ours(asset, tmp_path / "m")
+    assert model.body_subtreemass[model.body("object").id] == pytest.approx(sum(
+        g.mass for p in asset.parts for g in p.geoms), rel=1e-6)
+
+
 def test_more_than_four_moving_parts_keeps_four(tmp_path, caplog):
     urdf = fx.keyboard(tmp_path / "600001", keys=7)
     with caplog.at_level(logging.WARNING):
@@ -271,6 +284,8 @@ def test_bad_arguments(tmp_path):
     urdf = fx.stapler(tmp_path / "800001")
     with pytest.raises(ObjectError, match="scale or size"):
         load_urdf(urdf, scale=0.1, size=0.2)
+    with pytest.raises(ObjectError, match="collision must be"):
+        load_urdf(urdf, collision="sdf")
     with pytest.raises(ObjectError, match="density"):
         load_urdf(urdf, density=-1.0)
     with pytest.raises(UrdfError, match="operated_joint 'joint_9'"):

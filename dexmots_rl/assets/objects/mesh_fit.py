@@ -8,6 +8,8 @@ have neither a volume nor a signed distance. A part is approximated in two ways:
   at each step, the two groups whose common box adds the least volume, until ``max_boxes`` groups are left;
   each group gets its minimum-volume oriented bounding box. Open or hollow shapes become solid (a drawer
   is a solid block, a ring is filled): fingers collide with the boxes' outside only.
+* **collision, alternatively**: the convex hull of all the pieces, one watertight mesh (its signed distance
+  is well defined; a union of overlapping hulls would not have one).
 * **drawing**: the union of the convex hulls of the same components (each hull is closed, so the union is
   watertight in trimesh's sense), which keeps the silhouette of a part made of several pieces.
 
@@ -22,7 +24,7 @@ import functools
 import numpy as np
 import trimesh
 
-__all__ = ["Box", "fit_boxes", "hull_mesh", "components", "MAX_COMPONENTS_PER_PIECE"]
+__all__ = ["Box", "fit_boxes", "hull_mesh", "convex_hull", "components", "MAX_COMPONENTS_PER_PIECE"]
 
 MAX_COMPONENTS_PER_PIECE = 64
 _MAX_CLUSTER_SEEDS = 16  # greedy merging is quadratic: more components are first grouped by k-means on centroids
@@ -144,3 +146,19 @@ def hull_mesh(pieces: list[trimesh.Trimesh], min_half: float) -> trimesh.Trimesh
             hull = trimesh.creation.box(extents=2 * half, transform=transform)
         hulls.append(hull)
     return trimesh.util.concatenate(hulls)
+
+
+@_quiet
+def convex_hull(pieces: list[trimesh.Trimesh], min_half: float) -> trimesh.Trimesh:
+    """The convex hull of all the pieces (their thickened box when they are flat together)."""
+    points = np.concatenate([np.asarray(p.vertices, dtype=float) for p in pieces])
+    try:
+        hull = trimesh.convex.convex_hull(points)
+        if hull.is_watertight and hull.volume > 0:
+            return hull
+    except Exception:  # noqa: BLE001 - qhull rejects flat point sets
+        pass
+    half, centre, rotation = _oriented_box(points, min_half)
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rotation, centre
+    return trimesh.creation.box(extents=2 * half, transform=transform)

@@ -18,11 +18,12 @@ mesh paths relative to the file survive); trimesh loads the meshes. What the loa
   ``urdf_origin_x/y/z`` (the root frame's origin in the base frame): a point p of the URDF maps to
   ``urdf_origin + scale * p``.
 * **Geometry** (see :mod:`.mesh_fit`): collision is at most ``max_geoms_per_part`` oriented boxes per part
-  fitted to the ``<collision>`` pieces (``<visual>`` ones when a link has none); the part is drawn as the union
+  fitted to the ``<collision>`` pieces (``<visual>`` ones when a link has none), or with ``collision="hull"``
+  the convex hull of those pieces as one watertight mesh (a signed distance); the part is drawn as the union
   of the convex hulls of its ``<visual>`` pieces. A part without any mesh gets a sphere of
   :data:`PIVOT_RADIUS` at its joint (the base: at its first child's joint).
-* **Physics.** PartNet has no usable masses: each box weighs ``density`` times its volume (overlaps count
-  twice). Joints have no spring; damping and friction come from ``<dynamics damping friction>`` when present,
+* **Physics.** PartNet has no usable masses: each box (or hull) weighs ``density`` times its volume (boxes'
+  overlaps count twice). Joints have no spring; damping and friction come from ``<dynamics damping friction>`` when present,
   else :data:`HINGE_DEFAULTS` / :data:`SLIDE_DEFAULTS`, in SI units of the scaled object.
 
 A bad file raises one :class:`UrdfError` naming the file and the element; nothing is written to disk.
@@ -62,15 +63,17 @@ _PALETTE = ((0.62, 0.62, 0.66, 1.0), (0.85, 0.45, 0.2, 1.0), (0.25, 0.55, 0.85, 
 
 def load_urdf(path: str | Path, *, scale: float | None = None, size: float | None = None,
               density: float = DEFAULT_DENSITY, base: str = "free", operated_joint: str | None = None,
-              max_geoms_per_part: int = 4) -> ObjectAsset:
+              max_geoms_per_part: int = 4, collision: str = "boxes") -> ObjectAsset:
     """Read a URDF with revolute, continuous, prismatic and fixed joints into an :class:`ObjectAsset`.
 
     ``scale`` (a factor) or ``size`` (the longest bounding-box side in m; default :data:`DEFAULT_SIZE`) sizes
     it; ``density`` (kg/m^3) gives the masses; ``base``: ``"free"`` (on the table) or ``"fixed"``;
-    ``operated_joint``: a URDF joint name (default: the first moving joint in the file). See the module
-    docstring for the approximations."""
+    ``operated_joint``: a URDF joint name (default: the first moving joint in the file); ``collision``:
+    ``"boxes"`` (at most ``max_geoms_per_part`` oriented boxes per part) or ``"hull"`` (one watertight mesh
+    per part, its convex hull, collided through its signed distance). See the module docstring for the
+    approximations."""
     path = Path(path)
-    _check_arguments(scale, size, density, base, max_geoms_per_part)
+    _check_arguments(scale, size, density, base, max_geoms_per_part, collision)
     tree = check_urdf(path)
     where = str(path)
     try:
@@ -105,7 +108,11 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
             piece.apply_scale(factor)
             piece.apply_translation(shift)
         rgba = _PALETTE[index % len(_PALETTE)]
-        geoms = _box_geoms(collided[name], max_geoms_per_part, density, rgba)
+        if collision == "hull" and collided[name]:
+            meshes[_safe(name) + "_hull"] = hull = mesh_fit.convex_hull(collided[name], MIN_HALF_EXTENT)
+            geoms = [Geom("hull", "mesh", mesh=_safe(name) + "_hull", mass=density * hull.volume, rgba=rgba)]
+        else:
+            geoms = _box_geoms(collided[name], max_geoms_per_part, density, rgba)
         if not geoms:
             pivot = (np.zeros(3) if index > 0 else
                      next((factor * layout.pose_in_parent[c][:3, 3] + origin for c in layout.parts[1:]
@@ -143,7 +150,7 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
         raise UrdfError(f"{where}: {error}") from None
 
 
-def _check_arguments(scale, size, density, base, max_geoms_per_part) -> None:
+def _check_arguments(scale, size, density, base, max_geoms_per_part, collision) -> None:
     if scale is not None and size is not None:
         raise ObjectError("load_urdf: give scale or size, not both")
     for field, value in (("scale", scale), ("size", size), ("density", density)):
@@ -153,6 +160,8 @@ def _check_arguments(scale, size, density, base, max_geoms_per_part) -> None:
         raise ObjectError(f"load_urdf: base must be 'free' or 'fixed', got {base!r}")
     if not (isinstance(max_geoms_per_part, int) and max_geoms_per_part >= 1):
         raise ObjectError(f"load_urdf: max_geoms_per_part must be an integer >= 1, got {max_geoms_per_part!r}")
+    if collision not in ("boxes", "hull"):
+        raise ObjectError(f"load_urdf: collision must be 'boxes' or 'hull', got {collision!r}")
 
 
 def _choose_moving(where: str, joints: dict[str, UrdfJoint], operated: str | None) -> tuple[set, dict]:
