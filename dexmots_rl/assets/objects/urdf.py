@@ -20,11 +20,12 @@ mesh paths relative to the file survive); trimesh loads the meshes. What the loa
 * **Geometry** (see :mod:`.mesh_fit`): collision is at most ``max_geoms_per_part`` oriented boxes per part
   fitted to the ``<collision>`` pieces (``<visual>`` ones when a link has none), or with ``collision="hull"``
   the convex hull of those pieces as one watertight mesh (a signed distance); the part is drawn as the union
-  of the convex hulls of its ``<visual>`` pieces. A part without any mesh gets a sphere of
+  of the convex hulls of its ``<visual>`` pieces' connected components. A part without any mesh gets a sphere of
   :data:`PIVOT_RADIUS` at its joint (the base: at its first child's joint).
 * **Physics.** PartNet has no usable masses: each box (or hull) weighs ``density`` times its volume (boxes'
-  overlaps count twice). Joints have no spring; damping and friction come from ``<dynamics damping friction>`` when present,
-  else :data:`HINGE_DEFAULTS` / :data:`SLIDE_DEFAULTS`, in SI units of the scaled object.
+  overlaps count twice); ``<inertial>`` is ignored. Joints have no spring; damping and friction come from
+  ``<dynamics damping friction>`` when present, else :data:`HINGE_DEFAULTS` / :data:`SLIDE_DEFAULTS`, in SI
+  units of the scaled object. ``<limit effort velocity>`` and ``<mimic>`` are ignored.
 
 A bad file raises one :class:`UrdfError` naming the file and the element; nothing is written to disk.
 """
