@@ -18,7 +18,8 @@ import pytest
 
 import partnet_fixtures as fx
 from dexmots_rl.assets.objects import ObjectError
-from dexmots_rl.assets.objects.urdf import CONTINUOUS_RANGE, DEFAULT_DENSITY, DEFAULT_SIZE, HINGE_DEFAULTS, MIN_HALF_EXTENT, UrdfError, load_urdf
+from dexmots_rl.assets.objects.urdf import (CONTINUOUS_RANGE, DEFAULT_DENSITY, DEFAULT_SIZE, HINGE_DEFAULTS,
+                                            MIN_HALF_EXTENT, UrdfError, load_urdf)
 
 ANCHOR_TOL = 1e-6  # m, after scaling to ~0.2 m
 EXTENT_TOL = 1e-5  # m: the drawn hulls keep every piece's extreme points (float32 in MuJoCo's mesh store)
