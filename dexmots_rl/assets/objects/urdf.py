@@ -32,6 +32,7 @@ A bad file raises one :class:`UrdfError` naming the file and the element; nothin
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -78,7 +79,8 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
     tree = check_urdf(path)
     where = str(path)
     try:
-        spec = mujoco.MjSpec.from_string(tree.mujoco_xml)
+        with _mujoco_warnings_logged(where):
+            spec = mujoco.MjSpec.from_string(tree.mujoco_xml)
     except Exception as error:  # noqa: BLE001 - MuJoCo raises plain ValueError/Exception with its parser's text
         raise UrdfError(f"{where}: MuJoCo cannot read it: {error}") from None
 
@@ -149,6 +151,19 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
             description=f"{object_class} loaded from {path} (parts: {described}; scale {factor:.4g})")
     except ObjectError as error:  # e.g. two link names that differ only in characters MJCF names cannot hold
         raise UrdfError(f"{where}: {error}") from None
+
+
+@contextlib.contextmanager
+def _mujoco_warnings_logged(where: str):
+    """Route MuJoCo's warnings (e.g. 'equal lower and upper limits') to the log: by default MuJoCo appends
+    them to MUJOCO_LOG.TXT in the working directory, and loading must write no file. The handler is
+    process-wide, so it is restored right after."""
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda message: log.info("%s: MuJoCo: %s", where, message))
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
 
 
 def _check_arguments(scale, size, density, base, max_geoms_per_part, collision) -> None:
