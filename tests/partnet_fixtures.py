@@ -48,9 +48,9 @@ class PartNetFolder:
         self.pieces = 0
 
     def link(self, name: str, pieces, pivot=(0.0, 0.0, 0.0), label: str = "", kind: str = "static",
-             scale: str | None = None):
-        """A link made of ``pieces`` (object coordinates, or ``<mesh scale>``-scaled ones) whose frame sits
-        at ``pivot``."""
+             scale: str | None = None, primitives=()):
+        """A link made of ``pieces`` (object coordinates, or ``<mesh scale>``-scaled ones) and URDF
+        ``primitives`` (``(origin xyz, geometry xml)``, link frame) whose frame sits at ``pivot``."""
         self.pivots[name] = np.asarray(pivot, dtype=float)
         elements = []
         undo = " ".join(f"{-x:.9g}" for x in pivot)
@@ -67,6 +67,9 @@ class PartNetFolder:
                 named = f' name="{name}-{self.pieces}"' if tag == "visual" else ""
                 elements.append(f'    <{tag}{named}><origin xyz="{undo}"/>'
                                 f'<geometry><mesh filename="{file}"{scaled}/></geometry></{tag}>')
+        for xyz, shape in primitives:
+            for tag in ("visual", "collision"):
+                elements.append(f'    <{tag}><origin xyz="{xyz}" rpy="0.3 0 0"/><geometry>{shape}</geometry></{tag}>')
         self.links[name] = elements
         self.semantics.append(f"{name} {kind} {label or name}")
         return self
@@ -153,9 +156,12 @@ def lever_on_fixed_chain(root: Path) -> Path:
 
 
 def knob(root: Path) -> Path:
-    """A base block and a knob on a continuous joint about the up axis."""
+    """A base block (with URDF primitives beside it) and a knob on a continuous joint about the up axis."""
     return (PartNetFolder(root, "Knob")
-            .link("link_1", [box((0.6, 0.3, 0.6), (0, 0.15, 0))])
+            .link("link_1", [box((0.6, 0.3, 0.6), (0, 0.15, 0))],
+                  primitives=[("0.4 0.1 0", '<cylinder radius="0.1" length="0.3"/>'),
+                              ("-0.4 0.1 0", '<sphere radius="0.08"/>'),
+                              ("0 0.1 0.4", '<box size="0.1 0.2 0.05"/>')])
             .link("link_0", [box((0.3, 0.2, 0.1), (0, 0.4, 0)), open_box((0.1, 0.2, 0.3), (0, 0.4, 0))],
                   pivot=(0, 0.3, 0), kind="hinge", label="knob")
             .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)

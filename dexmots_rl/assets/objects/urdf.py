@@ -282,9 +282,9 @@ def _geom_mesh(where, element, spec, geom, meshdir: Path, cache: dict) -> trimes
     if kind == mujoco.mjtGeom.mjGEOM_BOX:
         return trimesh.creation.box(extents=2 * size[:3])
     if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        return trimesh.creation.icosphere(radius=size[0], subdivisions=2)
+        return trimesh.creation.icosphere(radius=size[0], subdivisions=3)
     if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
+        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=64)
     if kind != mujoco.mjtGeom.mjGEOM_MESH:
         raise UrdfError(f"{where}: {element}: unsupported geometry (MuJoCo geom type {kind})")
     asset = spec.mesh(geom.meshname)
