@@ -250,8 +250,7 @@ class _Layout:
 
 
 def _load_pieces(where: str, spec, layout: _Layout, bodies: dict, meshdir: Path):
-    """Per part, the drawn and the collision pieces, in the part frame of the root (unscaled) frame's units,
-    the base's expressed in the root frame."""
+    """Per part, its drawn and its collision pieces, in the part's frame and the URDF's (unscaled) units."""
     cache: dict[tuple, trimesh.Trimesh] = {}
     drawn = {p: [] for p in layout.parts}
     collided = {p: [] for p in layout.parts}
