@@ -39,6 +39,12 @@ INSTANCES: dict[str, tuple[str, dict]] = {
     "valve_c": ("valve", dict(spokes=5, hub_radius=0.022, turn=3.14, friction=0.03)),
     "drawer_a": ("drawer", {}),
     "drawer_b": ("drawer", dict(width=0.16, height=0.08, handle_width=0.06, travel=0.06, friction=0.8)),
+    "pliers_a": ("pliers", {}),
+    "pliers_b": ("pliers", dict(jaw_length=0.032, handle_length=0.09, handle_spread=0.02, grip_radius=0.005,
+                                half_mass=0.04, stiffness=0.07)),
+    "door_handle_a": ("door_handle", {}),
+    "door_handle_b": ("door_handle", dict(lever_length=0.09, lever_radius=0.007, handle_height=0.12,
+                                          turn=0.65, stiffness=0.2, lever_mass=0.05)),
 }
 
 

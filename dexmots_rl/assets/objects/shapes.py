@@ -126,7 +126,7 @@ def to_trimesh(solid: Solid) -> trimesh.Trimesh:
     if len(mesh.tri_verts) == 0:
         raise ValueError("the solid is empty")
     out = trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3].astype(np.float64),
-                          np.asarray(mesh.tri_verts, dtype=np.int64), process=True)
+                          np.asarray(mesh.tri_verts, dtype=np.int64), process=False)  # merging could pinch it
     if not out.is_watertight:  # manifold3d guarantees closed output; a failure here is a bug worth raising
         raise ValueError("the solid's mesh is not watertight")
     return out

@@ -14,14 +14,16 @@ from __future__ import annotations
 
 from .bottles import JarParams, PumpDispenserParams, SprayBottleParams, jar, pump_dispenser, spray_bottle
 from .common import Params
-from .fixtures import DrawerParams, ValveParams, drawer, valve
-from .hand_tools import ScissorsParams, StaplerParams, scissors, stapler
+from .fixtures import DoorHandleParams, DrawerParams, ValveParams, door_handle, drawer, valve
+from .hand_tools import PliersParams, ScissorsParams, StaplerParams, pliers, scissors, stapler
 
 __all__ = ["GENERATORS", "PARAMS", "Params", "spray_bottle", "scissors", "stapler", "pump_dispenser", "jar",
-           "valve", "drawer", "SprayBottleParams", "ScissorsParams", "StaplerParams", "PumpDispenserParams",
-           "JarParams", "ValveParams", "DrawerParams"]
+           "valve", "drawer", "pliers", "door_handle", "SprayBottleParams", "ScissorsParams", "StaplerParams",
+           "PumpDispenserParams", "JarParams", "ValveParams", "DrawerParams", "PliersParams", "DoorHandleParams"]
 
 GENERATORS = {"spray_bottle": spray_bottle, "scissors": scissors, "stapler": stapler,
-              "pump_dispenser": pump_dispenser, "jar": jar, "valve": valve, "drawer": drawer}
+              "pump_dispenser": pump_dispenser, "jar": jar, "valve": valve, "drawer": drawer,
+              "pliers": pliers, "door_handle": door_handle}
 PARAMS = {"spray_bottle": SprayBottleParams, "scissors": ScissorsParams, "stapler": StaplerParams,
-          "pump_dispenser": PumpDispenserParams, "jar": JarParams, "valve": ValveParams, "drawer": DrawerParams}
+          "pump_dispenser": PumpDispenserParams, "jar": JarParams, "valve": ValveParams, "drawer": DrawerParams,
+          "pliers": PliersParams, "door_handle": DoorHandleParams}

@@ -1,7 +1,8 @@
-"""Fixtures bolted to the table (fixed bases): a ROBEL-style valve and a drawer in its cabinet.
+"""Fixtures bolted to the table (fixed bases): a ROBEL-style valve, a drawer in its cabinet, a door handle.
 
 Valve: base frame under the post, the valve's axis is z. Drawer: base frame under the cabinet's middle,
-the drawer pulls out along +x.
+the drawer pulls out along +x. Door handle: base frame under the door panel's face, the handle sticks out
+along +x.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import numpy as np
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import Params, box_geom, capsule_geom, make_rng, param, with_mass
+from .common import Params, box_geom, capsule_geom, cylinder_geom, make_rng, param, with_mass
 
-__all__ = ["ValveParams", "valve", "DrawerParams", "drawer"]
+__all__ = ["ValveParams", "valve", "DrawerParams", "drawer", "DoorHandleParams", "door_handle"]
 
 METAL = (0.55, 0.57, 0.6, 1.0)
 VALVE_GREEN = (0.2, 0.65, 0.35, 1.0)
@@ -138,3 +139,61 @@ def drawer(params: DrawerParams | None = None, rng=None, name: str = "drawer") -
         grasp=(float(D / 2 + bar_x), 0.0, float(zc + t)), params=p.as_dict(),
         meshes={"cabinet": cabinet_mesh, "drawer": drawer_mesh},
         description="drawer in a cabinet; pull it out by its handle")
+
+
+# -------------------------------------------------------------------------------------------- door handle
+@dataclasses.dataclass(frozen=True)
+class DoorHandleParams(Params):
+    door_width: float = param(0.14, 0.1, 0.2, "m", "width of the door panel section (y)")
+    door_height: float = param(0.22, 0.16, 0.28, "m", "height of the door panel section")
+    handle_height: float = param(0.14, 0.1, 0.2, "m", "height of the spindle above the table")
+    lever_length: float = param(0.11, 0.08, 0.13, "m", "spindle to the lever's end (y)")
+    lever_radius: float = param(0.008, 0.006, 0.011, "m", "lever bar radius")
+    lever_mass: float = param(0.08, 0.03, 0.15, "kg", "lever and neck", "mass")
+    turn: float = param(0.75, 0.6, 0.9, "rad", "how far the lever turns down (the operated range)", "angle")
+    stiffness: float = param(0.15, 0.08, 0.3, "N m/rad", "return spring", "feel")
+    preload: float = param(0.5, 0.3, 0.8, "rad", "spring rest above the level stop", "feel")
+    damping: float = param(0.005, 0.001, 0.03, "N m s/rad", "viscous damping", "feel")
+    friction: float = param(0.005, 0.0, 0.02, "N m", "Coulomb friction", "feel")
+
+
+def door_handle(params: DoorHandleParams | None = None, rng=None, name: str = "door_handle") -> ObjectAsset:
+    """A lever door handle on a section of door panel (fixed): the lever sticks out along +x from a round
+    rosette and runs along +y; q > 0 turns it down about the spindle (axis -x) against a return spring.
+    0.15 N m/rad from a 0.5 rad preload holds the level lever against its weight (0.075 N m against about
+    0.04 N m) and needs about 0.15 N m net fully down: under 2 N at the lever's end."""
+    p = params or DoorHandleParams()
+    if rng is not None:
+        p = p.sample(make_rng(rng))
+    p.validate()
+    door_t, rosette_r, rosette_t = 0.025, 0.026, 0.01
+    door = shapes.rounded_box((door_t, p.door_width, p.door_height), 0.002, (-door_t / 2, 0, p.door_height / 2))
+    rosette = shapes.cylinder(rosette_r, (-0.001, 0, p.handle_height), (rosette_t, 0, p.handle_height),
+                              radius_top=rosette_r - 0.003)
+    base_mesh = shapes.to_trimesh(shapes.union([door, rosette]))
+
+    # lever frame: on the spindle at the rosette's face
+    neck_l, r = 0.03, p.lever_radius
+    neck = shapes.cylinder(0.011, (-0.002, 0, 0), (neck_l, 0, 0), radius_top=0.009)
+    bar = shapes.polyline_tube(r, [(neck_l - r, 0, 0), (neck_l, 0.3 * p.lever_length, 0),
+                                   (neck_l - 0.004, p.lever_length, -0.006)])
+    lever_mesh = shapes.to_trimesh(shapes.union([neck, bar]))
+
+    base_geoms = with_mass([
+        box_geom("door", (door_t, p.door_width, p.door_height), (-door_t / 2, 0, p.door_height / 2), WOOD),
+        cylinder_geom("rosette", rosette_r, (0, 0, p.handle_height), (rosette_t, 0, p.handle_height), METAL),
+    ], 2.0)
+    lever_geoms = with_mass([
+        capsule_geom("lever", r, (neck_l, 0.02, 0), (neck_l - 0.002, p.lever_length, -0.004), METAL),
+        cylinder_geom("neck", 0.011, (0, 0, 0), (neck_l, 0, 0), METAL),
+    ], p.lever_mass)
+    joint = Joint("lever", "hinge", (-1.0, 0.0, 0.0), (0.0, p.turn), stiffness=p.stiffness, rest=-p.preload,
+                  damping=p.damping, friction=p.friction)
+    return ObjectAsset(
+        name=name, object_class="door_handle", base="fixed", operated_joint="lever",
+        parts=(Part("door", base_geoms, visual="door"),
+               Part("lever", lever_geoms, parent="door", joint=joint, pos=(rosette_t, 0.0, p.handle_height),
+                    visual="lever")),
+        grasp=(float(rosette_t + neck_l), float(0.6 * p.lever_length), float(p.handle_height)),
+        params=p.as_dict(), meshes={"door": base_mesh, "lever": lever_mesh},
+        description="lever door handle; press the lever down")

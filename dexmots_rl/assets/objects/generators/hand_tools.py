@@ -1,18 +1,19 @@
-"""Hand tools that lie or stand free on the table: scissors and a desktop stapler.
+"""Hand tools that lie or stand free on the table: scissors, a desktop stapler, pliers.
 
-Scissors: base frame at the pivot on the table, blades along +x, lying flat (z up). Stapler: base frame
-under the middle of its base plate, the front (where it staples) along +x.
+Scissors and pliers: base frame at the pivot on the table, blades or jaws along +x, lying flat (z up).
+Stapler: base frame under the middle of its base plate, the front (where it staples) along +x.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
 from .common import (Params, axis_angle_quat, box_geom, capsule_geom, make_rng, mesh_geom, param, with_mass)
 
-__all__ = ["ScissorsParams", "scissors", "StaplerParams", "stapler"]
+__all__ = ["ScissorsParams", "scissors", "StaplerParams", "stapler", "PliersParams", "pliers"]
 
 STEEL = (0.78, 0.8, 0.84, 1.0)
 HANDLE_ORANGE = (0.95, 0.5, 0.1, 1.0)
@@ -158,3 +159,72 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
         meshes={"base": base_mesh, "arm": arm_mesh},
         description="desktop stapler; press the arm down onto the base")
 
+
+
+# ------------------------------------------------------------------------------------------------- pliers
+@dataclasses.dataclass(frozen=True)
+class PliersParams(Params):
+    jaw_length: float = param(0.036, 0.025, 0.05, "m", "pivot to jaw tip")
+    jaw_width: float = param(0.016, 0.012, 0.02, "m", "jaw width at the pivot")
+    thickness: float = param(0.006, 0.004, 0.008, "m", "thickness of one half")
+    handle_length: float = param(0.11, 0.08, 0.13, "m", "pivot to handle end along -x")
+    handle_spread: float = param(0.025, 0.018, 0.032, "m", "handle end's offset from the axis at rest")
+    grip_radius: float = param(0.006, 0.0045, 0.008, "m", "radius of a handle's plastic grip")
+    half_mass: float = param(0.06, 0.03, 0.1, "kg", "one half (jaw, handle, grip)", "mass")
+    stiffness: float = param(0.1, 0.04, 0.2, "N m/rad", "opening spring", "feel")
+    preload: float = param(0.2, 0.05, 0.4, "rad", "spring rest beyond the open stop", "feel")
+    friction: float = param(0.005, 0.0, 0.02, "N m", "pivot friction", "feel")
+    damping: float = param(0.002, 0.0005, 0.01, "N m s/rad", "viscous damping", "feel")
+
+
+def _pliers_half(p: PliersParams, side: float, z0: float, tag: str, meshes: dict) -> tuple:
+    """Jaw, boss and handle of one half; side +1: the handle ends on +y and the jaw points to -y of +x."""
+    t, half_open = p.thickness, math.atan2(p.handle_spread, p.handle_length)
+    jaw_dir = (math.cos(half_open), -side * math.sin(half_open))
+    normal = (-jaw_dir[1], jaw_dir[0])
+    w0, length = p.jaw_width / 2, p.jaw_length
+
+    def at(u, v):  # a point u along the jaw, v across it
+        return (u * jaw_dir[0] + v * normal[0], u * jaw_dir[1] + v * normal[1])
+
+    outline = [at(-0.012, -w0), at(0.7 * length, -0.5 * w0), at(length, -0.25 * w0), at(length, 0.15 * w0),
+               at(0.5 * length, 0.8 * w0), at(-0.012, w0)]
+    jaw = shapes.extrude(outline, t).translate((0, 0, z0 + t / 2))
+    # both grips lie on the table (the handles bend down from the stacked pivot), so the pliers lie flat
+    end = (-p.handle_length, side * p.handle_spread, p.grip_radius)
+    grip_start = (-0.4 * p.handle_length, side * 0.4 * p.handle_spread, p.grip_radius)
+    shaft = shapes.polyline_tube(0.45 * t, [(0, 0, z0 + t / 2), (-0.25 * p.handle_length,
+                                            side * 0.25 * p.handle_spread, z0 + t / 2), (*end[:2], p.grip_radius)])
+    grip = shapes.capsule(p.grip_radius, grip_start, end)
+    boss = shapes.cylinder(0.55 * p.jaw_width, (0, 0, z0), (0, 0, z0 + t))
+    rivet = shapes.cylinder(0.004, (0, 0, z0), (0, 0, z0 + t + 0.0015))
+    meshes[tag] = shapes.to_trimesh(shapes.union([jaw, shaft, grip, boss, rivet]))
+    jaw_centre = at(0.4 * length, 0.0)
+    geoms = [capsule_geom("grip", p.grip_radius, grip_start, end, HANDLE_BLUE if side < 0 else STAPLER_RED),
+             box_geom("jaw", (length + 0.012, 1.6 * w0, t), (*jaw_centre, z0 + t / 2), STEEL,
+                      quat=axis_angle_quat((0, 0, 1), math.atan2(jaw_dir[1], jaw_dir[0]))),
+             capsule_geom("shaft", 0.45 * t, (0, 0, z0 + t / 2), grip_start, STEEL)]
+    return with_mass(geoms, p.half_mass)
+
+
+def pliers(params: PliersParams | None = None, rng=None, name: str = "pliers") -> ObjectAsset:
+    """Pliers lying flat with their handles spread by an opening spring: one half is the free base; the
+    other turns about the pivot (axis -z) and q > 0 squeezes the handles together, closing the jaws. The
+    range stops the handles at 90 % of the way to touching. Spring 0.1 N m/rad from a 0.2 rad preload: about
+    0.06 N m fully squeezed, under 1 N at the grips."""
+    p = params or PliersParams()
+    if rng is not None:
+        p = p.sample(make_rng(rng))
+    p.validate()
+    meshes: dict = {}
+    squeeze = 0.9 * 2.0 * math.atan2(p.handle_spread, p.handle_length)
+    base_geoms = _pliers_half(p, +1.0, 0.0, "half_a", meshes)
+    moving_geoms = _pliers_half(p, -1.0, p.thickness, "half_b", meshes)
+    joint = Joint("pivot", "hinge", (0.0, 0.0, -1.0), (0.0, squeeze), stiffness=p.stiffness, rest=-p.preload,
+                  damping=p.damping, friction=p.friction)
+    return ObjectAsset(
+        name=name, object_class="pliers", base="free", operated_joint="pivot",
+        parts=(Part("half_a", base_geoms, visual="half_a"),
+               Part("half_b", moving_geoms, parent="half_a", joint=joint, visual="half_b")),
+        grasp=(float(-0.7 * p.handle_length), 0.0, float(p.thickness)), params=p.as_dict(), meshes=meshes,
+        description="pliers lying flat; squeeze the handles together")
