@@ -26,8 +26,9 @@ LIGHT = np.array([0.4, -0.5, 0.8]) / np.linalg.norm([0.4, -0.5, 0.8])
 
 
 def draw(ax, asset, q, title: str) -> None:
+    rest_low, rest_high = bounding_box(asset)
+    flat = (rest_high[2] - rest_low[2]) < 0.3 * (rest_high - rest_low).max()  # lying tools: seen from higher up
     low, high = bounding_box(asset, q)
-    flat = (high[2] - low[2]) < 0.3 * (high - low).max()  # lying tools are seen from higher up
     elev, azim = (55 if flat else 22), -60
     eye = np.array([np.cos(np.radians(elev)) * np.cos(np.radians(azim)),
                     np.cos(np.radians(elev)) * np.sin(np.radians(azim)), np.sin(np.radians(elev))])
@@ -44,12 +45,14 @@ def draw(ax, asset, q, title: str) -> None:
     # one collection for all parts: matplotlib orders faces by depth only within a collection
     colors = np.concatenate(colors)
     ax.add_collection3d(Poly3DCollection(np.concatenate(triangles), facecolors=colors, edgecolors=colors,
-                                         linewidths=0.2))
-    centre, half = (low + high) / 2, (high - low).max() / 2 * 1.05
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(max(centre[2] - half, low[2] - 0.005), centre[2] + half)
-    ax.set_box_aspect((1, 1, 1), zoom=1.15)
+                                         linewidths=0.4, antialiased=False))
+    # equal scale on all axes, each axis as long as the object's extent along it (at least a fifth of the
+    # longest) so that flat tools fill the frame
+    centre = (low + high) / 2
+    half = np.maximum((high - low) / 2, (high - low).max() / 10) * 1.05
+    for set_limits, c, h in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, half):
+        set_limits(c - h, c + h)
+    ax.set_box_aspect(tuple(half), zoom=0.95)
     ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
     ax.set_title(title, fontsize=9)
@@ -58,7 +61,7 @@ def draw(ax, asset, q, title: str) -> None:
 def render(name: str, out: Path) -> Path:
     asset = load_object(name)
     operated = {j.name: j.range[0] + 0.9 * (j.range[1] - j.range[0]) for j in asset.joints}
-    fig = plt.figure(figsize=(6.4, 3.4), dpi=90)
+    fig = plt.figure(figsize=(6.4, 3.4), dpi=110)
     for i, (q, label) in enumerate([(None, "at rest"), (operated, "operated (90 % of range)")]):
         draw(fig.add_subplot(1, 2, i + 1, projection="3d"), asset, q, f"{name}: {label}")
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.93, wspace=0)

@@ -118,16 +118,19 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
     plate_h, block_l = 0.012, 0.03
     plate = shapes.rounded_box((p.length, p.width, plate_h), 0.004, (0, 0, plate_h / 2))
     anvil = shapes.box((0.03, 0.4 * p.width, 0.002), (half - 0.03, 0, plate_h + 0.0005))
-    block = shapes.rounded_box((block_l, 0.8 * p.width, p.hinge_height + 0.006), 0.004,
-                               (-half + block_l / 2 + 0.002, 0, (p.hinge_height + 0.006) / 2))
+    # the hinge block stops under the hinge's knuckle; the arm's magazine starts ahead of it
+    block_h = p.hinge_height - 0.006
+    block = shapes.rounded_box((block_l, 0.8 * p.width, block_h), 0.004,
+                               (-half + block_l / 2 + 0.002, 0, block_h / 2))
     base_mesh = shapes.to_trimesh(shapes.union([plate, anvil, block]))
 
     # arm frame: at the hinge, arm along +x when pressed flat; its bottom clears the plate by 2 mm then
     h, arm_w = p.arm_height, 0.75 * p.width
     drop = p.hinge_height - plate_h - 0.002  # hinge to the arm's bottom face
-    mag_l = p.arm_length - 0.01
+    mag_start = block_l - 0.008
+    mag_l = p.arm_length - 0.01 - mag_start
     magazine = shapes.rounded_box((mag_l, 0.8 * arm_w, h - 0.006), 0.003,
-                                  (mag_l / 2, 0, -drop + (h - 0.006) / 2))
+                                  (mag_start + mag_l / 2, 0, -drop + (h - 0.006) / 2))
     cover_outline = [(-0.012, -drop + h - 0.012), (p.arm_length - 0.02, -drop + h - 0.012),
                      (p.arm_length, -drop + h - 0.018), (p.arm_length + 0.004, -drop + h - 0.008),
                      (p.arm_length - 0.02, -drop + h), (0.3 * p.arm_length, -drop + h + 0.004),
@@ -138,13 +141,13 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
 
     base_geoms = with_mass([
         box_geom("plate", (p.length, p.width, plate_h), (0, 0, plate_h / 2), STAPLER_GREY),
-        box_geom("block", (block_l, 0.8 * p.width, p.hinge_height + 0.006),
-                 (-half + block_l / 2 + 0.002, 0, (p.hinge_height + 0.006) / 2), STAPLER_GREY),
+        box_geom("block", (block_l, 0.8 * p.width, block_h), (-half + block_l / 2 + 0.002, 0, block_h / 2),
+                 STAPLER_GREY),
     ], p.base_mass)
     arm_geoms = with_mass([
         box_geom("cover", (p.arm_length + 0.016, arm_w, 0.012), (p.arm_length / 2 - 0.004, 0, -drop + h - 0.006),
                  STAPLER_RED),
-        box_geom("magazine", (mag_l, 0.8 * arm_w, h - 0.006), (mag_l / 2, 0, -drop + (h - 0.006) / 2),
+        box_geom("magazine", (mag_l, 0.8 * arm_w, h - 0.006), (mag_start + mag_l / 2, 0, -drop + (h - 0.006) / 2),
                  STAPLER_RED),
     ], p.arm_mass)
     hinge = (-half + 0.012, 0.0, p.hinge_height)
