@@ -8,28 +8,35 @@ at the end with :func:`to_trimesh`. Lengths in metres; all shapes are in the cal
 from __future__ import annotations
 
 import math
-from typing import Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
 import trimesh
 
-try:
-    import manifold3d
-except ImportError as error:  # the procedural objects cannot be built without it
-    raise ImportError("the procedural objects need manifold3d (pip install manifold3d)") from error
+if TYPE_CHECKING:  # manifold3d is imported only when a solid is built
+    from manifold3d import Manifold as Solid
 
 __all__ = [
-    "Solid", "box", "rounded_box", "cylinder", "sphere", "capsule", "polyline_tube", "revolve", "extrude",
+    "box", "rounded_box", "cylinder", "sphere", "capsule", "polyline_tube", "revolve", "extrude",
     "ring", "union", "difference", "to_trimesh", "rotation_between", "arc", "SEGMENTS",
 ]
 
-Solid = manifold3d.Manifold
 SEGMENTS = 32  # facets around a round solid: smooth enough to read as round, few enough for fast SDF grids
+
+
+def _manifold():
+    """The manifold3d module, imported when a solid is first built (the object description and a URDF
+    object load without it)."""
+    try:
+        import manifold3d
+    except ImportError as error:
+        raise ImportError("building the procedural objects needs manifold3d (pip install manifold3d)") from error
+    return manifold3d
 
 
 def box(size: Sequence[float], center: Sequence[float] = (0.0, 0.0, 0.0)) -> Solid:
     """An axis-aligned box of full extents ``size`` centred at ``center``."""
-    return Solid.cube(tuple(float(s) for s in size), center=True).translate(tuple(center))
+    return _manifold().Manifold.cube(tuple(float(s) for s in size), center=True).translate(tuple(center))
 
 
 def rounded_box(size: Sequence[float], radius: float, center: Sequence[float] = (0.0, 0.0, 0.0)) -> Solid:
@@ -37,9 +44,9 @@ def rounded_box(size: Sequence[float], radius: float, center: Sequence[float] = 
     half = np.asarray(size, dtype=float) / 2.0 - radius
     if np.any(half <= 0):
         raise ValueError(f"rounded_box: radius {radius} too large for size {tuple(size)}")
-    corners = [Solid.sphere(radius, SEGMENTS // 2).translate(tuple(np.asarray(center) + half * np.array(s)))
+    corners = [_manifold().Manifold.sphere(radius, SEGMENTS // 2).translate(tuple(np.asarray(center) + half * np.array(s)))
                for s in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)]
-    return Solid.batch_hull(corners)
+    return _manifold().Manifold.batch_hull(corners)
 
 
 def rotation_between(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
@@ -65,17 +72,17 @@ def cylinder(radius: float, p0: Sequence[float], p1: Sequence[float], radius_top
     p0, p1 = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
     length = float(np.linalg.norm(p1 - p0))
     top = radius if radius_top is None else radius_top
-    solid = Solid.cylinder(length, radius, top, SEGMENTS)
+    solid = _manifold().Manifold.cylinder(length, radius, top, SEGMENTS)
     return _place(solid, rotation_between((0, 0, 1), p1 - p0), p0)
 
 
 def sphere(radius: float, center: Sequence[float] = (0.0, 0.0, 0.0)) -> Solid:
-    return Solid.sphere(radius, SEGMENTS).translate(tuple(center))
+    return _manifold().Manifold.sphere(radius, SEGMENTS).translate(tuple(center))
 
 
 def capsule(radius: float, p0: Sequence[float], p1: Sequence[float]) -> Solid:
     """A capsule of ``radius`` around the segment p0-p1 (the hull of two spheres)."""
-    return Solid.batch_hull([sphere(radius, p0), sphere(radius, p1)])
+    return _manifold().Manifold.batch_hull([sphere(radius, p0), sphere(radius, p1)])
 
 
 def polyline_tube(radius: float, points: Iterable[Sequence[float]]) -> Solid:
@@ -86,8 +93,8 @@ def polyline_tube(radius: float, points: Iterable[Sequence[float]]) -> Solid:
 
 def revolve(profile: Sequence[Sequence[float]], segments: int = SEGMENTS) -> Solid:
     """The solid of revolution about z of a profile of (radius, z) points (counter-clockwise, radius >= 0)."""
-    section = manifold3d.CrossSection([[(float(r), float(z)) for r, z in profile]])
-    return Solid.revolve(section, segments)
+    section = _manifold().CrossSection([[(float(r), float(z)) for r, z in profile]])
+    return _manifold().Manifold.revolve(section, segments)
 
 
 def extrude(outline: Sequence[Sequence[float]], thickness: float, plane: str = "xy") -> Solid:
@@ -95,7 +102,7 @@ def extrude(outline: Sequence[Sequence[float]], thickness: float, plane: str = "
 
     ``plane="xy"``: the outline in (x, y), thickness along z; ``"xz"``: the outline in (x, z) (a side
     profile), thickness along y."""
-    section = manifold3d.CrossSection([[(float(u), float(v)) for u, v in outline]])
+    section = _manifold().CrossSection([[(float(u), float(v)) for u, v in outline]])
     solid = section.extrude(thickness).translate((0.0, 0.0, -thickness / 2.0))
     if plane == "xy":
         return solid
@@ -107,13 +114,14 @@ def extrude(outline: Sequence[Sequence[float]], thickness: float, plane: str = "
 def ring(inner_radius: float, outer_radius: float, thickness: float,
          center: Sequence[float] = (0.0, 0.0, 0.0)) -> Solid:
     """A flat ring (an annulus extruded along z by ``thickness``, centred at ``center``)."""
-    outer = manifold3d.CrossSection.circle(outer_radius, SEGMENTS)
-    inner = manifold3d.CrossSection.circle(inner_radius, SEGMENTS)
+    outer = _manifold().CrossSection.circle(outer_radius, SEGMENTS)
+    inner = _manifold().CrossSection.circle(inner_radius, SEGMENTS)
     return (outer - inner).extrude(thickness).translate((center[0], center[1], center[2] - thickness / 2.0))
 
 
 def union(solids: Iterable[Solid]) -> Solid:
-    return Solid.batch_boolean(list(solids), manifold3d.OpType.Add)
+    manifold3d = _manifold()
+    return manifold3d.Manifold.batch_boolean(list(solids), manifold3d.OpType.Add)
 
 
 def difference(solid: Solid, *cutters: Solid) -> Solid:
