@@ -2,8 +2,8 @@
 
 Base frame: the bottle's axis is z, its bottom at z = 0, the nozzle or spout points along +x.
 Springs are scaled to the Allegro hand (fingertips push ~5 N, finger motors 0.35-0.5 N m), not to the real
-tool (a real trigger sprayer needs 10-30 N): each operated joint travels its whole range under a third to
-two thirds of what one finger can give, and its preload holds the part at rest against gravity.
+tool (a real trigger sprayer needs 10-30 N): each operated joint travels its whole range under at most
+about two thirds of what one finger can give, and its preload holds the part at rest against gravity.
 """
 
 from __future__ import annotations
