@@ -77,7 +77,8 @@ def test_instance_is_valid_watertight_and_hand_sized(name):
     assert 0.03 <= extent <= 0.30, f"{name}: {extent:.3f} m"
     # the base frame's z = 0 is the table: the object stands on it, not in it nor above it
     assert abs(low[2]) < 1e-3, f"{name}: lowest point {low[2]:.4f} m"
-    assert np.all(np.abs(a.grasp) < 0.3)
+    # the grasp point is on the tool (within 2 cm of its bounds), where pre-grasps put the hand
+    assert np.all(np.asarray(a.grasp) > low - 0.02) and np.all(np.asarray(a.grasp) < high + 0.02)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -157,6 +158,11 @@ def test_part_frames_agree_with_mujoco(object_class, tmp_path):
         body = model.body("object" if part == a.parts[0].name else f"object/{part}").id
         np.testing.assert_allclose(transform[:3, 3], data.xpos[body], atol=1e-9)
         np.testing.assert_allclose(transform[:3, :3], data.xmat[body].reshape(3, 3), atol=1e-9)
+
+
+def test_part_transforms_reject_unknown_joints():
+    with pytest.raises(KeyError, match="no joints \\['spout'\\].*trigger"):
+        part_transforms(asset("spray_bottle_a"), {"spout": 0.1})
 
 
 # ------------------------------------------------------------------------------------------- generators
