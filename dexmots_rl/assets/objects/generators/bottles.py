@@ -214,7 +214,9 @@ def jar(params: JarParams | None = None, rng=None, name: str = "jar") -> ObjectA
     ribs = [shapes.cylinder(rib_r, (lid_r * math.cos(a), lid_r * math.sin(a), -0.002),
                             (lid_r * math.cos(a), lid_r * math.sin(a), lid_h - 0.005))
             for a in np.linspace(0, 2 * math.pi, p.ribs, endpoint=False)]
-    lid_mesh = shapes.to_trimesh(shapes.union([lid, *ribs]))
+    # a raised radial mark on top shows how far the lid has turned (to a viewer and to a camera)
+    mark = shapes.box((0.7 * lid_r, 0.006, 0.003), (0.4 * lid_r, 0.0, lid_h + 0.001))
+    lid_mesh = shapes.to_trimesh(shapes.union([lid, mark, *ribs]))
 
     jar_geoms = with_mass([cylinder_geom("glass", r, (0, 0, 0), (0, 0, top), GLASS)], p.body_mass)
     lid_geoms = with_mass([cylinder_geom("lid", lid_r + rib_r, (0, 0, -0.004), (0, 0, lid_h), LID_GOLD)],
