@@ -1,7 +1,7 @@
 """The named objects that ship with the package, and the one entry point that loads any object.
 
-Every instance is a generator with fixed parameters (no random draw), so it is the same object on every
-machine. :func:`load_object` takes a library name or the path of a URDF file (PartNet-Mobility layout).
+Every instance is its generator called with fixed parameters (no random draw), so it is the same object
+on every machine. :func:`load_object` takes a library name or the path of a URDF file (PartNet-Mobility layout).
 """
 
 from __future__ import annotations

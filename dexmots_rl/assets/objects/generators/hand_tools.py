@@ -41,7 +41,7 @@ class ScissorsParams(Params):
 
 
 def _scissor_half(p: ScissorsParams, side: float, z0: float, colour, tag: str, meshes: dict) -> tuple:
-    """Blade, shank and ring of one half (side +1: ring on +y, blade's edge on -y), bottom at z0."""
+    """Blade, shank and ring of one half (side +1: ring on +y, blade's edge on -y), the blade's bottom at z0."""
     t, ring_t = p.thickness, 1.5 * p.thickness
     w, length = p.blade_width, p.blade_length
     outline = [(-0.012, -side * 0.35 * w), (0.5 * length, -side * 0.05 * w), (length, side * 0.02 * w),
@@ -50,11 +50,12 @@ def _scissor_half(p: ScissorsParams, side: float, z0: float, colour, tag: str, m
         outline = outline[::-1]
     blade = shapes.extrude(outline, t).translate((0, 0, z0 + t / 2))
     outer = p.ring_radius + p.ring_band
-    centre = (-p.handle_length, side * p.handle_spread, z0 + ring_t / 2)
+    # both rings lie on the table (the upper half's shank bends down to its ring), so the scissors lie flat
+    centre = (-p.handle_length, side * p.handle_spread, ring_t / 2)
     ring = shapes.ring(p.ring_radius, outer, ring_t, centre)
     shank_r = 0.3 * p.ring_band + 0.5 * t  # a round shank a little thicker than the blade, resting on z0
     shank_start = (0.0, 0.0, z0 + shank_r)
-    shank_end = (-p.handle_length + 0.8 * outer, side * p.handle_spread * 0.8, z0 + shank_r)
+    shank_end = (-p.handle_length + 0.8 * outer, side * p.handle_spread * 0.8, shank_r)
     shank = shapes.capsule(shank_r, shank_start, shank_end)
     pivot = shapes.cylinder(0.005, (0, 0, z0), (0, 0, z0 + t + 0.0015))
     meshes[f"half_{tag}"] = shapes.to_trimesh(shapes.union([blade, ring, shank, pivot]))
