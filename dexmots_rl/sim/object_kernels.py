@@ -106,11 +106,17 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         e[k] = dtype(1.0)
         return e
 
-    @wp.func
-    def solve_pp(A: matPP, b: vecP):
-        if wp.static(NPV == 1):
+    if NPV == 1:  # warp's inverse starts at 2 x 2
+
+        @wp.func
+        def solve_pp(A: matPP, b: vecP):
             return vecP(b[0] / A[0, 0])
-        return wp.inverse(A) * b
+
+    else:
+
+        @wp.func
+        def solve_pp(A: matPP, b: vecP):
+            return wp.inverse(A) * b
 
     @wp.kernel(module="unique", enable_backward=True)
     def substep(
@@ -119,6 +125,11 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         qd: wp.array2d(dtype=dtype),  # [N, nv] in
         params: wp.array2d(dtype=dtype),  # [N, 4 * NP] per joint: damping, friction, stiffness, rest
         ext: wp.array2d(dtype=dtype),  # [N, 6 * B] per body: force (N) and torque about its com (N m), world
+        contact_f: wp.array2d(dtype=vec3),  # [N, B] contact force on each body (N), world (table_contact)
+        contact_t: wp.array2d(dtype=vec3),  # [N, B] its torque about the body's com (N m)
+        contact_Kvv: wp.array2d(dtype=mat33),  # [N, B] dt x the contacts' viscous friction, at the com
+        contact_Kvw: wp.array2d(dtype=mat33),
+        contact_Kww: wp.array2d(dtype=mat33),
         dt: dtype,
         body_x: wp.array2d(dtype=vec3),  # [N, B] scratch (this substep's): body origins
         body_R: wp.array2d(dtype=mat33),  # [N, B] scratch: body rotations
@@ -216,41 +227,17 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
                         Jw = Jw + wp.outer(ak, unit_p(kk))
                     else:
                         Jv = Jv + wp.outer(ak, unit_p(kk))
-            # the body's velocity: base motion plus its joints'
-            vc = v0 + wp.cross(w0, c - x0) + Jv * qdj
             # applied wrench: external (the hand, the planner) and the table
             f_app = vec3(ext[w, 6 * b + 0], ext[w, 6 * b + 1], ext[w, 6 * b + 2])
             t_app = vec3(ext[w, 6 * b + 3], ext[w, 6 * b + 4], ext[w, 6 * b + 5])
-            # the body's spatial inertia at its com, plus the table friction's implicit viscous part
-            # (dt cf P_t per contact, P_t the projection on the table's plane, moved to the com)
+            # the body's spatial inertia at its com, plus the contacts' implicit viscous part (table_contact)
             mb = m.mass[b]
             Iw = R * m.inertia[b] * wp.transpose(R)
-            Kvv = mb * wp.identity(n=3, dtype=dtype)
-            Kvw = mat33()
-            Kww = Iw
-            if wp.static(TABLE):
-                Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
-                           dtype(0.0), dtype(0.0), dtype(0.0))
-                for s in range(S):
-                    rad = m.sample_radius[b, s]
-                    if rad >= dtype(0.0):
-                        ps = x + R * m.sample_pos[b, s]
-                        pen = m.table_z + rad - ps[2]
-                        if pen > dtype(-12.0) / m.beta:
-                            r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
-                            vp = vc + wp.cross(om, r)
-                            fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vp[2], dtype(0.0))
-                            vt = vec3(vp[0], vp[1], dtype(0.0))
-                            cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
-                            f = vec3(dtype(0.0), dtype(0.0), fn) - cf * vt
-                            f_app = f_app + f
-                            t_app = t_app + wp.cross(r, f)
-                            # the point's velocity is V - [r]x w: its friction damping g P_t seen at the com
-                            g = dt * cf
-                            Sr = wp.skew(r)
-                            Kvv = Kvv + g * Pt
-                            Kvw = Kvw - g * Pt * Sr
-                            Kww = Kww - g * Sr * Pt * Sr
+            Kvv = mb * wp.identity(n=3, dtype=dtype) + contact_Kvv[w, b]
+            Kvw = contact_Kvw[w, b]
+            Kww = Iw + contact_Kww[w, b]
+            f_app = f_app + contact_f[w, b]
+            t_app = t_app + contact_t[w, b]
             Kwv = wp.transpose(Kvw)
             # inertial minus applied wrench, and the body's share of the matrix, block by block
             F = mb * (ac - m.gravity) - f_app
@@ -321,5 +308,137 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             qd_out[w, vo + k] = v_k
             q_out[w, qo + k] = qj[k] + dt * v_k
 
-    ns = types.SimpleNamespace(Model=Model, substep=substep, vec3=vec3, mat33=mat33, dtype=dtype)
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def frames(
+        m: Model,
+        q: wp.array2d(dtype=dtype),  # [N, nq]
+        qd: wp.array2d(dtype=dtype),  # [N, nv]
+        body_x: wp.array2d(dtype=vec3),  # [N, B] out: body origins (m, world)
+        body_R: wp.array2d(dtype=mat33),  # [N, B] out: body rotations (body -> world)
+        body_c: wp.array2d(dtype=vec3),  # [N, B] out: com positions (m)
+        body_v: wp.array2d(dtype=vec3),  # [N, B] out: com velocities (m/s)
+        body_w: wp.array2d(dtype=vec3),  # [N, B] out: angular velocities (rad/s)
+    ):
+        """Every body's pose and velocity (what the contacts read at the start of a substep)."""
+        w = wp.tid()
+        qo = 7 * int(FREE)
+        vo = 6 * int(FREE)
+        x0 = m.off_pos[0]
+        R0 = m.off_rot[0]
+        v0 = vec3()
+        w0 = vec3()
+        if wp.static(FREE):
+            x0 = vec3(q[w, 0], q[w, 1], q[w, 2])
+            R0 = wp.quat_to_matrix(quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3]))
+            v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
+            w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
+        body_x[w, 0] = x0
+        body_R[w, 0] = R0
+        body_c[w, 0] = x0 + R0 * m.com[0]
+        body_v[w, 0] = v0 + wp.cross(w0, R0 * m.com[0])
+        body_w[w, 0] = w0
+        for b in range(1, B):
+            k = b - 1
+            p = m.parent[b]
+            xp = body_x[w, p]
+            Rp = body_R[w, p]
+            omp = body_w[w, p]
+            vo_p = body_v[w, p] + wp.cross(omp, xp - body_c[w, p])  # velocity of the parent's origin
+            R = Rp * m.off_rot[b]
+            a = R * m.jaxis[k]
+            o = xp + Rp * m.off_pos[b] + R * m.janchor[k]
+            v_o = vo_p + wp.cross(omp, o - xp)
+            qk = q[w, qo + k]
+            qdk = qd[w, vo + k]
+            x = o - R * m.janchor[k]
+            om = omp
+            if m.jkind[k] == 0:
+                R = R * axis_angle(m.jaxis[k], qk)
+                x = o - R * m.janchor[k]
+                om = omp + a * qdk
+            else:
+                x = x + a * qk
+                v_o = v_o + a * qdk + wp.cross(omp, a * qk)
+            c = x + R * m.com[b]
+            if m.jkind[k] == 0:
+                v_c = v_o + wp.cross(om, c - o)
+            else:
+                v_c = v_o + wp.cross(om, c - o - a * qk)
+            body_x[w, b] = x
+            body_R[w, b] = R
+            body_c[w, b] = c
+            body_v[w, b] = v_c
+            body_w[w, b] = om
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def table_contact(
+        m: Model,
+        body_x: wp.array2d(dtype=vec3),  # [N, B] (frames)
+        body_R: wp.array2d(dtype=mat33),
+        body_c: wp.array2d(dtype=vec3),
+        body_v: wp.array2d(dtype=vec3),
+        body_w: wp.array2d(dtype=vec3),
+        dt: dtype,
+        contact_f: wp.array2d(dtype=vec3),  # [N, B] out (accumulated): force on the body (N)
+        contact_t: wp.array2d(dtype=vec3),  # [N, B] out: torque about its com (N m)
+        contact_Kvv: wp.array2d(dtype=mat33),  # [N, B] out: dt x viscous friction seen at the com
+        contact_Kvw: wp.array2d(dtype=mat33),
+        contact_Kww: wp.array2d(dtype=mat33),
+    ):
+        """The table's push on body b of world w (a thread per world and body): penalty normal force with
+        Hunt-Crossley damping and smoothed Coulomb friction at each surface sample. Their viscous parts are
+        handed to the solve as a matrix (linearly implicit: the object holds on the table like static friction
+        at any slip velocity, and a stiff damper cannot overshoot and pump energy into a bounce)."""
+        w, b = wp.tid()
+        x = body_x[w, b]
+        R = body_R[w, b]
+        c = body_c[w, b]
+        vc = body_v[w, b]
+        om = body_w[w, b]
+        f_sum = vec3()
+        t_sum = vec3()
+        Kvv = mat33()
+        Kvw = mat33()
+        Kww = mat33()
+        Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
+                   dtype(0.0), dtype(0.0), dtype(0.0))
+        Nz = mat33(dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0),
+                   dtype(0.0), dtype(0.0), dtype(1.0))
+        for s in range(S):
+            rad = m.sample_radius[b, s]
+            if rad >= dtype(0.0):
+                ps = x + R * m.sample_pos[b, s]
+                pen = m.table_z + rad - ps[2]
+                if pen > dtype(-12.0) / m.beta:
+                    r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
+                    vp = vc + wp.cross(om, r)
+                    fe = m.ke * softplus(pen, m.beta)
+                    damp = dtype(1.0) - m.kd * vp[2]
+                    fn = fe * wp.max(damp, dtype(0.0))
+                    # the penalty's stiffness, linearised at the predicted penetration (as the joint springs)
+                    kn = m.ke / (dtype(1.0) + wp.exp(-m.beta * pen)) * wp.max(damp, dtype(0.0))
+                    fn = fn - dt * kn * vp[2]
+                    vt = vec3(vp[0], vp[1], dtype(0.0))
+                    cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+                    f = vec3(dtype(0.0), dtype(0.0), fn) - cf * vt
+                    f_sum = f_sum + f
+                    t_sum = t_sum + wp.cross(r, f)
+                    # the viscous parts, dt x (cf P_t + fe kd n n^T), and dt^2 kn n n^T go into the solve's matrix, moved to the com
+                    # (the point's velocity is V - [r]x w)
+                    gn = dt * dt * kn
+                    if damp > dtype(0.0):
+                        gn = gn + dt * fe * m.kd
+                    Pc = dt * cf * Pt + gn * Nz
+                    Sr = wp.skew(r)
+                    Kvv = Kvv + Pc
+                    Kvw = Kvw - Pc * Sr
+                    Kww = Kww + wp.transpose(Sr) * Pc * Sr
+        contact_f[w, b] = contact_f[w, b] + f_sum
+        contact_t[w, b] = contact_t[w, b] + t_sum
+        contact_Kvv[w, b] = contact_Kvv[w, b] + Kvv
+        contact_Kvw[w, b] = contact_Kvw[w, b] + Kvw
+        contact_Kww[w, b] = contact_Kww[w, b] + Kww
+
+    ns = types.SimpleNamespace(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE, vec3=vec3, mat33=mat33, dtype=dtype)
     return ns

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import tempfile
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -28,7 +27,7 @@ from .mjcf_shapes import AssetError
 from .object_kernels import build_object_kernels
 from .object_model import MAX_SAMPLES, ObjectTree, object_tree
 
-__all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree", "object_scene_xml"]
+__all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
 
 LIMIT_FREQUENCY = 300.0  # rad/s: a range stop is as stiff as an oscillator of this frequency on the joint's inertia
 
@@ -47,22 +46,14 @@ class TableContact:
     slip_velocity: float = 0.002  # m/s
 
 
-def object_scene_xml(asset, mesh_dir: str | Path, timestep: float = 1.0 / 960.0, gravity: bool = True) -> str:
-    """MJCF of ``asset`` (an :class:`~dexmots_rl.assets.objects.ObjectAsset`) alone on a table at z = 0."""
-    assets, body = asset.mjcf(mesh_dir)
-    g = "0 0 -9.81" if gravity else "0 0 0"
-    return (f'<mujoco model="{asset.name}">\n  <compiler angle="radian"/>\n'
-            f'  <option timestep="{timestep!r}" gravity="{g}"/>\n  <asset>\n{assets}  </asset>\n'
-            f'  <worldbody>\n    <geom name="table" type="plane" size="1 1 0.01" rgba="0.8 0.75 0.65 1"/>\n'
-            f'{body}  </worldbody>\n</mujoco>\n')
-
-
-def load_object_tree(asset, timestep: float = 1.0 / 960.0, gravity: bool = True) -> tuple[ObjectTree, object]:
+def load_object_tree(asset, timestep: float = 1.0 / 960.0) -> tuple[ObjectTree, object]:
     """Compile ``asset`` on a table with MuJoCo; returns ``(ObjectTree, MjModel)``."""
     import mujoco
 
+    from ..assets.objects import object_scene_xml
+
     with tempfile.TemporaryDirectory() as tmp:
-        xml = object_scene_xml(asset, tmp, timestep, gravity)
+        xml = object_scene_xml(asset, tmp, timestep=timestep)
         try:
             m = mujoco.MjModel.from_xml_string(xml)
         except Exception as exc:
@@ -181,17 +172,24 @@ class ObjectSimulator:
         nb, nparts = self.tree.num_bodies, max(self.tree.num_parts, 1)
         wdt = _wp_dtype(self.dtype)
         states = [(wq, wqd)]
-        for _ in range(self.substeps):
-            def scratch(dtype, count):
-                return wp.zeros((n, count), dtype=dtype, device=self.device, requires_grad=grad)
 
-            q_out = wp.zeros((n, self.nq), dtype=wdt, device=self.device, requires_grad=grad)
-            qd_out = wp.zeros((n, self.nv), dtype=wdt, device=self.device, requires_grad=grad)
+        def new(dtype, count):
+            return wp.zeros((n, count), dtype=dtype, device=self.device, requires_grad=grad)
+
+        for _ in range(self.substeps):
+            # every substep its own arrays: a taped launch must not overwrite what an earlier one read
+            q_in, qd_in = states[-1]
+            frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
+            wp.launch(k.frames, dim=n, inputs=[self.model, q_in, qd_in], outputs=frames, device=self.device)
+            contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
+            if k.table:
+                wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, *frames, wdt(self.sub_dt)],
+                          outputs=contact, device=self.device)
+            q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
             wp.launch(k.substep, dim=n, device=self.device,
-                      inputs=[self.model, states[-1][0], states[-1][1], wpar, wext, wdt(self.sub_dt),
-                              scratch(k.vec3, nb), scratch(k.mat33, nb), scratch(k.vec3, nb), scratch(k.vec3, nb),
-                              scratch(k.vec3, nb), scratch(k.vec3, nb), scratch(k.vec3, nparts),
-                              scratch(k.vec3, nparts)],
+                      inputs=[self.model, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),
+                              new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb),
+                              new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)],
                       outputs=[q_out, qd_out])
             states.append((q_out, qd_out))
         return wq, wqd, wpar, wext, states[-1]
