@@ -1,0 +1,337 @@
+"""Warp kernels of the hand in an articulated-object scene: finger chains, and their contact with the object.
+
+Two kernels per substep (sim/articulated.py runs them around the object tree's, sim/object_kernels.py):
+
+* ``finger_contact``, a thread per world and finger sample sphere: the sphere's pose and velocity through its
+  finger chain, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
+  cylinder), and a relaxed penalty contact with Coulomb friction (:class:`~dexmots_rl.sim.ContactParams`' law)
+  per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
+  and torque about its com) with atomic adds, so contacts of one world sum in any order.
+* ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces (a sum over links
+  of J^T M J and J^T (inertial) wrenches), the motor's PD drive (implicit, smoothly saturated at its effort),
+  joint damping, friction and range stops, the contact forces, and the solve.
+
+``observe`` writes every hand link's pose and the fingertips. Hand joints are hinges; loops have compile-time
+trip counts (exact adjoints); everything is generic in the float type.
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import functools
+import types
+
+import warp as wp
+
+__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER"]
+
+GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER = -1, 0, 1, 2, 3
+LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
+FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
+CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
+
+
+@functools.lru_cache(maxsize=None)
+def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, bodies: int, geoms: int):
+    """Kernels for ``num_fingers`` chains of ``joints`` hinges with ``points`` sample spheres per link, against an
+    object of ``bodies`` bodies with at most ``geoms`` collision geoms each."""
+    dtype = float_type
+    F, J, P, B, G = int(num_fingers), int(joints), int(points), int(bodies), int(geoms)
+    vec3 = wp.types.vector(3, dtype)
+    vec4 = wp.types.vector(4, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    vecJ = wp.types.vector(J, dtype)
+    matJ = wp.types.matrix((J, J), dtype)
+    mat3J = wp.types.matrix((3, J), dtype)
+
+    @wp.struct
+    class Model:
+        base_pos: wp.array(dtype=vec3)  # [F] m, world: where each chain starts
+        base_rot: wp.array(dtype=mat33)  # [F]
+        off_pos: wp.array(dtype=vec3)  # [F*J] link frame in its parent's at q = 0
+        off_rot: wp.array(dtype=mat33)  # [F*J]
+        axis: wp.array(dtype=vec3)  # [F*J] hinge axis, link frame
+        mass: wp.array(dtype=dtype)  # [F*J] kg
+        com: wp.array(dtype=vec3)  # [F*J] m, link frame
+        inertia: wp.array(dtype=mat33)  # [F*J] kg m^2 about the com, link frame
+        armature: wp.array(dtype=dtype)  # [F*J] kg m^2
+        damping: wp.array(dtype=dtype)  # [F*J] N m s/rad
+        friction: wp.array(dtype=dtype)  # [F*J] N m
+        lower: wp.array(dtype=dtype)  # [F*J] rad
+        upper: wp.array(dtype=dtype)  # [F*J] rad
+        limit_ke: wp.array(dtype=dtype)  # [F*J] N m/rad (0: unlimited)
+        effort: wp.array(dtype=dtype)  # [F*J] N m: the drive's saturation (0: none)
+        point_pos: wp.array(dtype=vec3)  # [F*J*P] m, link frame
+        point_radius: wp.array(dtype=dtype)  # [F*J*P] m (0: padding)
+        tip_pos: wp.array(dtype=vec3)  # [F] m, last link's frame
+        geom_kind: wp.array2d(dtype=wp.int32)  # [B, G] GEOM_* (GEOM_NONE: padding)
+        geom_pos: wp.array2d(dtype=vec3)  # [B, G] m, body frame
+        geom_rot: wp.array2d(dtype=mat33)  # [B, G] geom -> body
+        geom_size: wp.array2d(dtype=vec3)  # [B, G] box: half sizes; sphere: (r); capsule, cylinder: (r, half length)
+        gravity: vec3
+        ke: dtype  # N/m: contact stiffness
+        kd: dtype  # s/m: Hunt-Crossley damping
+        beta: dtype  # 1/m: softplus sharpness
+        mu: dtype  # friction coefficient
+        v_slip: dtype  # m/s
+
+    @wp.func
+    def softplus(x: dtype, beta: dtype):
+        bx = beta * x
+        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def axis_angle(a: vec3, t: dtype):
+        c = wp.cos(t)
+        s = wp.sin(t)
+        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
+
+    @wp.func
+    def unit_j(k: int):
+        e = vecJ()
+        e[k] = dtype(1.0)
+        return e
+
+    @wp.func
+    def limit_ramp(x: dtype):
+        if x <= dtype(0.0):
+            return dtype(0.0)
+        if x < dtype(LIMIT_WIDTH):
+            return x * x * dtype(0.5 / LIMIT_WIDTH)
+        return x - dtype(0.5 * LIMIT_WIDTH)
+
+    @wp.func
+    def geom_distance(kind: int, size: vec3, p: vec3):
+        """Signed distance (m, negative inside) and outward unit normal of point p (geom frame), packed."""
+        d = dtype(1.0e6)
+        n = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
+        if kind == GEOM_SPHERE:
+            r = wp.length(p)
+            d = r - size[0]
+            n = p / wp.max(r, dtype(1.0e-9))
+        elif kind == GEOM_CAPSULE:
+            s = vec3(dtype(0.0), dtype(0.0), wp.clamp(p[2], -size[1], size[1]))
+            r = wp.length(p - s)
+            d = r - size[0]
+            n = (p - s) / wp.max(r, dtype(1.0e-9))
+        elif kind == GEOM_BOX:
+            qx = wp.abs(p[0]) - size[0]
+            qy = wp.abs(p[1]) - size[1]
+            qz = wp.abs(p[2]) - size[2]
+            out = vec3(wp.max(qx, dtype(0.0)), wp.max(qy, dtype(0.0)), wp.max(qz, dtype(0.0)))
+            lo = wp.length(out)
+            if lo > dtype(1.0e-9):
+                d = lo
+                n = vec3(out[0] * wp.sign(p[0]), out[1] * wp.sign(p[1]), out[2] * wp.sign(p[2])) / lo
+            else:  # inside: the nearest face
+                d = wp.max(qx, wp.max(qy, qz))
+                if qx >= qy and qx >= qz:
+                    n = vec3(wp.sign(p[0]), dtype(0.0), dtype(0.0))
+                elif qy >= qz:
+                    n = vec3(dtype(0.0), wp.sign(p[1]), dtype(0.0))
+                else:
+                    n = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
+        elif kind == GEOM_CYLINDER:
+            rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1.0e-12))
+            radial = vec3(p[0] / rho, p[1] / rho, dtype(0.0))
+            qr = rho - size[0]
+            qz = wp.abs(p[2]) - size[1]
+            axial = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
+            if qr > dtype(0.0) and qz > dtype(0.0):
+                lo = wp.sqrt(qr * qr + qz * qz)
+                d = lo
+                n = (qr * radial + qz * axial) / lo
+            elif qr > qz:
+                d = qr
+                n = radial
+            else:
+                d = qz
+                n = axial
+        return vec4(d, n[0], n[1], n[2])
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def finger_contact(
+        m: Model,
+        hq: wp.array2d(dtype=dtype),  # [N, F*J] rad
+        hqd: wp.array2d(dtype=dtype),  # [N, F*J] rad/s
+        body_x: wp.array2d(dtype=vec3),  # [N, B] object frames (object_kernels.frames)
+        body_R: wp.array2d(dtype=mat33),
+        body_c: wp.array2d(dtype=vec3),
+        body_v: wp.array2d(dtype=vec3),
+        body_w: wp.array2d(dtype=vec3),
+        gen: wp.array2d(dtype=dtype),  # [N, F*J] out (atomic): contact torque on each hand joint (N m)
+        contact_f: wp.array2d(dtype=vec3),  # [N, B] out (atomic): contact force on each object body (N)
+        contact_t: wp.array2d(dtype=vec3),  # [N, B] out (atomic): its torque about the body's com (N m)
+        normal_sum: wp.array(dtype=dtype),  # [N] out (atomic): the summed normal force magnitudes (N)
+    ):
+        w, s = wp.tid()
+        link = s / P  # f * J + k of the sphere's link
+        f = link / J
+        k_link = link - f * J
+        rad = m.point_radius[s]
+        if rad <= dtype(0.0):
+            return
+        # the chain up to the sphere's link: joint origins and axes, the link's frame
+        R = m.base_rot[f]
+        x = m.base_pos[f]
+        O = mat3J()  # joint origins (columns)
+        A = mat3J()  # joint axes (columns)
+        for k in range(J):
+            if k <= k_link:
+                i = f * J + k
+                x = x + R * m.off_pos[i]
+                R = R * m.off_rot[i]
+                a = R * m.axis[i]
+                O = O + wp.outer(x, unit_j(k))
+                A = A + wp.outer(a, unit_j(k))
+                R = R * axis_angle(m.axis[i], hq[w, i])
+        p = x + R * m.point_pos[s]
+        # the sphere centre's Jacobian over the finger's joints and its velocity
+        Jp = mat3J()
+        qdf = vecJ()
+        for k in range(J):
+            if k <= k_link:
+                col = wp.cross(vec3(A[0, k], A[1, k], A[2, k]), p - vec3(O[0, k], O[1, k], O[2, k]))
+                Jp = Jp + wp.outer(col, unit_j(k))
+                qdf = qdf + hqd[w, f * J + k] * unit_j(k)
+        vp = Jp * qdf
+        gen_f = vecJ()
+        for b in range(B):
+            xb = body_x[w, b]
+            Rb = body_R[w, b]
+            pl = wp.transpose(Rb) * (p - xb)
+            best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
+            for g in range(G):
+                kind = m.geom_kind[b, g]
+                if kind != GEOM_NONE:
+                    Rg = m.geom_rot[b, g]
+                    dn = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
+                    if dn[0] < best[0]:
+                        nb = Rg * vec3(dn[1], dn[2], dn[3])
+                        best = vec4(dn[0], nb[0], nb[1], nb[2])
+            pen = rad - best[0]
+            if pen > dtype(-CONTACT_CUTOFF) / m.beta:
+                n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                cp = p - n * rad
+                v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
+                v_rel = vp - v_body
+                vn = wp.dot(v_rel, n)
+                fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+                vt = v_rel - vn * n
+                ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+                fc = fn * n + ft  # on the finger
+                gen_f = gen_f + wp.transpose(Jp) * fc
+                wp.atomic_add(contact_f, w, b, -fc)
+                wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
+                wp.atomic_add(normal_sum, w, fn)
+        for k in range(J):
+            if k <= k_link:
+                wp.atomic_add(gen, w, f * J + k, gen_f[k])
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def hand_substep(
+        m: Model,
+        hq: wp.array2d(dtype=dtype),  # [N, F*J] in
+        hqd: wp.array2d(dtype=dtype),  # [N, F*J] in
+        tau: wp.array2d(dtype=dtype),  # [N, F*J] N m: feed-forward torque
+        q_target: wp.array2d(dtype=dtype),  # [N, F*J] rad
+        kp: wp.array2d(dtype=dtype),  # [N, F*J] N m/rad
+        kd: wp.array2d(dtype=dtype),  # [N, F*J] N m s/rad
+        gen: wp.array2d(dtype=dtype),  # [N, F*J] N m: contact torques (finger_contact)
+        dt: dtype,
+        hq_out: wp.array2d(dtype=dtype),  # [N, F*J]
+        hqd_out: wp.array2d(dtype=dtype),  # [N, F*J]
+    ):
+        w, f = wp.tid()
+        R = m.base_rot[f]
+        x = m.base_pos[f]
+        om = vec3()
+        al = vec3()  # velocity-product angular acceleration
+        acc = -m.gravity  # velocity-product acceleration of the joint origin (gravity as the base's acceleration)
+        o_prev = x
+        O = mat3J()
+        A = mat3J()
+        M = matJ()
+        bias = vecJ()
+        qf = vecJ()
+        qdf = vecJ()
+        for k in range(J):
+            qf = qf + hq[w, f * J + k] * unit_j(k)
+            qdf = qdf + hqd[w, f * J + k] * unit_j(k)
+        for k in range(J):
+            i = f * J + k
+            x = x + R * m.off_pos[i]
+            R = R * m.off_rot[i]
+            a = R * m.axis[i]
+            lever = x - o_prev
+            acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
+            R = R * axis_angle(m.axis[i], qf[k])
+            al = al + wp.cross(om, a * qdf[k])
+            om = om + a * qdf[k]
+            o_prev = x
+            O = O + wp.outer(x, unit_j(k))
+            A = A + wp.outer(a, unit_j(k))
+            # the link's com Jacobian Jv and angular Jacobian Jw over the chain's joints so far
+            c = x + R * m.com[i]
+            Jv = mat3J()
+            for kk in range(J):
+                if kk <= k:
+                    ak = vec3(A[0, kk], A[1, kk], A[2, kk])
+                    Jv = Jv + wp.outer(wp.cross(ak, c - vec3(O[0, kk], O[1, kk], O[2, kk])), unit_j(kk))
+            Jw = A
+            ml = m.mass[i]
+            Iw = R * m.inertia[i] * wp.transpose(R)
+            ac = acc + wp.cross(al, c - x) + wp.cross(om, wp.cross(om, c - x))
+            M = M + ml * wp.transpose(Jv) * Jv + wp.transpose(Jw) * Iw * Jw
+            bias = bias + wp.transpose(Jv) * (ml * ac) + wp.transpose(Jw) * (Iw * al + wp.cross(om, Iw * om))
+        rhs = vecJ()
+        diag = matJ()
+        for k in range(J):
+            i = f * J + k
+            qk = qf[k]
+            qdk = qdf[k]
+            drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
+            gain = dt * kd[w, i] + dt * dt * kp[w, i]
+            effort = m.effort[i]
+            if effort > dtype(0.0):
+                sat = wp.tanh(drive / effort)
+                drive = effort * sat
+                gain = gain * (dtype(1.0) - sat * sat)
+            e = unit_j(k)
+            diag = diag + (m.armature[i] + dt * m.damping[i] + gain) * wp.outer(e, e)
+            lim = m.limit_ke[i] * (limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i]))
+            fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+            rhs = rhs + (tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[w, i]) * e
+        rhs = rhs - bias
+        qdd = solve_jj(M + diag, rhs)
+        for k in range(J):
+            i = f * J + k
+            v_new = qdf[k] + dt * qdd[k]
+            hqd_out[w, i] = v_new
+            hq_out[w, i] = qf[k] + dt * v_new
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def observe(
+        m: Model,
+        hq: wp.array2d(dtype=dtype),  # [N, F*J]
+        body_x: wp.array2d(dtype=vec3),  # [N, B] object frames
+        body_R: wp.array2d(dtype=mat33),
+        pose: wp.array2d(dtype=dtype),  # [N, (F*J + B) * 7] out: pos + wxyz quat of every hand link, then body
+        tips: wp.array2d(dtype=dtype),  # [N, F * 3] out: fingertip positions (m)
+    ):
+        w = wp.tid()
+        for f in range(F):
+            R = m.base_rot[f]
+            x = m.base_pos[f]
+            for k in range(J):
+                i = f * J + k
+                x = x + R * m.off_pos[i]
+                R = R * m.off_rot[i] * axis_angle(m.axis[i], hq[w, i])
+                write_pose(pose, w, i, x, R)
+            tip = x + R * m.tip_pos[f]
+            for c in range(3):
+                tips[w, f * 3 + c] = tip[c]
+        for b in range(B):
+            write_pose(pose, w, F * J + b, body_x[w, b], body_R[w, b])
+
+    return types.SimpleNamespace(Model=Model, finger_contact=finger_contact, hand_substep=hand_substep,
+                                 observe=observe, vec3=vec3, mat33=mat33, dtype=dtype)
