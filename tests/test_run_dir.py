@@ -1,4 +1,4 @@
-"""Issue #16 (trainer): config validation first, run directories that are never trained over or shared,
+"""The trainer under bad input: config validation first, run directories that are never trained over or shared,
 resumes that repeat no log rows and keep their checkpoint's config, clean SIGINT/SIGTERM."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue #16 (env side): the reward sees the clamped action, clear errors for a state-less step and a missing
+"""The env under bad input: the reward sees the clamped action, clear errors for a state-less step and a missing
 GPU, absurd reference plans are rejected, the env pickles."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue #16 (files): checksummed checkpoints and plans, sane reference plans, dexmots-plan argument checks,
+"""Files under bad input: checksummed checkpoints and plans, sane reference plans, dexmots-plan argument checks,
 atomic writes at the umask's mode, strict JSON, stale temp files, one-line errors on a full disk."""
 
 from __future__ import annotations
