@@ -12,7 +12,7 @@ from tensordict import TensorDict
 
 from dexmots_rl.algorithms import ppo, sac
 from dexmots_rl.algorithms.common import deployable_policy, make_train_env, sync_obs_norm, tanh_gaussian_actor
-from dexmots_rl.algorithms.evaluation import policy_from_checkpoint
+from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from dexmots_rl.envs import make_env

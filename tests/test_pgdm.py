@@ -12,7 +12,8 @@ from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dexmots_rl.algorithms import pgdm
-from dexmots_rl.algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+from dexmots_rl.algorithms.evaluation import evaluate_policy
+from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from dexmots_rl.envs import make_env
