@@ -39,7 +39,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     """Success rate, mean final error and mean time to success over ``episodes`` deterministic episodes.
 
     ``record``: an MCAP path; the first ``record_worlds`` episodes are written there (``live``: the file is
-    rewritten after every evaluation, for ``dexmots-view --live``; see :mod:`dexmots_rl.viz`)."""
+    rewritten after every evaluation, for ``dexmots-view --live``; see :mod:`dexmots_rl.recording`)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = make_env(task_cfg, num_envs=episodes, differentiable=False, seed=seed, device=device)
@@ -97,7 +97,7 @@ _LIVE_RECORDERS: dict = {}
 
 
 def _record(task_cfg, rollout, path, worlds: int, live: bool) -> None:
-    from ..viz import EpisodeRecorder
+    from ..recording import EpisodeRecorder
 
     worlds = min(worlds, rollout.shape[0])
     # the recorder needs an env of exactly the recorded worlds (scene geometry, references)
