@@ -72,7 +72,8 @@ def policy_from_checkpoint(path, device="cpu"):
     path = Path(path)
     data = load_checkpoint(latest_checkpoint(path) if path.is_dir() else path)
     if data.get("algo") not in ALGORITHMS:
-        raise CheckpointError(f"checkpoint {path}: unknown algo {data.get('algo')!r}; known: {', '.join(list_algorithms())}")
+        raise CheckpointError(f"checkpoint {path}: unknown algo {data.get('algo')!r}; "
+                              f"known: {', '.join(list_algorithms())}")
     entry = ALGORITHMS[data["algo"]]
     if entry.load_policy is None:
         raise CheckpointError(f"checkpoint {path}: algo {entry.name!r} saves no policy")

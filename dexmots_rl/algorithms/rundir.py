@@ -212,7 +212,8 @@ class RunDirectory:
         if self.start is not None:
             for what, name in (("task", cfg.task.name), ("algo", cfg.algo.name)):
                 if self.start.get(what) != name:
-                    raise CheckpointError(f"{cfg.resume} was trained with {what} {self.start.get(what)!r}, not {name!r}")
+                    raise CheckpointError(f"{cfg.resume} was trained with {what} {self.start.get(what)!r}, "
+                                          f"not {name!r}")
         self.cfg, self.dir, self.main = cfg, Path(cfg.run_dir), main
         self.logger, self._lock = None, None
         if not main:

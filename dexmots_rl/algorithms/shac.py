@@ -311,7 +311,8 @@ def load_policy(data: dict, env):
     """The actor (with its observation normaliser) of a SHAC / AHAC checkpoint ``data`` on ``env``'s specs."""
     algo = data["config"]["algo"]
     actor, _, norm = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
-                                   tuple(algo["hidden"]), algo["init_log_std"], layer_norm=algo.get("layer_norm", False))
+                                   tuple(algo["hidden"]), algo["init_log_std"],
+                                   layer_norm=algo.get("layer_norm", False))
     actor.load_state_dict(data["modules"]["actor"])
     norm.load_state_dict(data["modules"]["norm"])
     return actor

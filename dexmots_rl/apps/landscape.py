@@ -1,9 +1,10 @@
 """The objective landscape of the paper's Fig. 4: ``dexmots-plot landscape`` computes it here and draws it
 with :func:`dexmots_rl.viz.plots.plot_landscape`.
 
-The screw-claw hand closes on the knob with the scripted controller of :mod:`dexmots_rl.envs.tasks.screw_claw`
-until the fingers touch it; from that one state, every action of a grid over the two distal joints (the other joints keep the scripted action) is
-stepped once in a batch of worlds with ``differentiable=True``, and the one-step objectives
+The screw-claw hand closes on the knob with the scripted controller of
+:mod:`dexmots_rl.envs.tasks.screw_claw` until the fingers touch it; from that one state, every action of a
+grid over the two distal joints (the other joints keep the scripted action) is stepped once in a batch of
+worlds with ``differentiable=True``, and the one-step objectives
 
 * pose only:      ``J_p  = exp(-|θ - θ̄| / pose_scale)``                         (:func:`angle_tracking_reward`)
 * pose + wrench:  ``J_pw = J_p + exp(-‖(Δf / force_scale, Δτ / torque_scale)‖)``  (+ :func:`wrench_reward`)
