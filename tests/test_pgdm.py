@@ -165,3 +165,14 @@ def test_the_loss_is_torchrls_clip_ppo(tmp_path):
 def test_bad_pgdm_fields_name_the_field(tmp_path, override, field):
     with pytest.raises(ValueError, match=field):
         train(_cfg(tmp_path, override))
+
+
+def test_a_resumed_run_trains_its_checkpoints_pgdm(tmp_path):
+    run = tmp_path / "run"
+    assert train(_cfg(tmp_path, "stop_after=1", "algo.target_offsets=[1,2]")) == {}
+    cli = [f"resume={run}", "progress=false"]  # the defaults name another method (ahac) and other offsets
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        result = train(compose("config", overrides=cli), cli)
+    assert result["algo"] == "pgdm" and result["iterations"] == 2
+    _, data = policy_from_checkpoint(run)
+    assert list(data["config"]["algo"]["target_offsets"]) == [1, 2]

@@ -165,18 +165,40 @@ class CollectorLoop:
 
     The trainer counts ``counters["iteration"]`` and ``counters["env_steps"]`` itself; :meth:`end_iteration`
     then stops the clock for the row, logs the row (:func:`batch_metrics` + the method's statistics),
-    checks the budget, writes a checkpoint every ``checkpoint_every`` iterations and at the end, runs the
-    periodic evaluations (their time is not training time), and says whether the run is over.
-    :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
+    checks the budget, writes a checkpoint every ``checkpoint_every`` iterations, at the end and at
+    ``stop_after``, runs the periodic evaluations (their time is not training time), and says whether to
+    stop. :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
+    On resume (:attr:`.RunDirectory.start`), the counters continue the checkpoint's and :meth:`restore`
+    loads its modules and optimizers.
     """
 
     def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int):
         self.run, self.cfg, self.policy, self.vecnorm, self.iterations = run, run.cfg, policy, vecnorm, iterations
         self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
-        self.budget, self.stopped_by = RunBudget.from_config(self.cfg), None
-        self.bar = tqdm(total=iterations, desc=f"{self.cfg.algo.name} {self.cfg.task.name}",
-                        disable=not self.cfg.progress, file=sys.stderr)
-        self._t_start = time.perf_counter()
+        if run.start is not None:
+            self.counters.update(run.start["counters"])
+        self.stop_at = min(iterations, self.cfg.stop_after) if self.cfg.stop_after else iterations
+        self.budget, self.stopped_by, self.ended = RunBudget.from_config(self.cfg), None, False
+        self.bar = tqdm(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
+                        desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
+        self._t_start = time.perf_counter() - self.counters["wall_clock_s"]
+
+    def restore(self, modules: dict, optimizers: dict) -> None:
+        """On resume: the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
+        under) and of torch's random stream; nothing on a fresh run. The episodes start afresh (a
+        collector's env state is not saved)."""
+        start = self.run.start
+        if start is None:
+            return
+        for name, module in modules.items():
+            module.load_state_dict(start["modules"][name])
+        for name, optimizer in optimizers.items():
+            optimizer.load_state_dict(start["optimizers"][name])
+        torch.set_rng_state(start["rng"]["torch"])
+
+    def frames_left(self, frames_per_batch: int) -> int:
+        """The frames the collector still has to collect: up to ``stop_after`` or the schedule's end."""
+        return max(0, self.stop_at - self.counters["iteration"]) * frames_per_batch
 
     def progress(self) -> float:
         """How far the run is to its end in [0, 1] (its schedule or its budget): linear decays follow it."""
@@ -194,20 +216,27 @@ class CollectorLoop:
         self.bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                              reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
         self.stopped_by = self.budget.reached(counters)
-        last = counters["iteration"] >= self.iterations or self.stopped_by is not None
-        evaluate_now = self.cfg.eval.every and counters["iteration"] % self.cfg.eval.every == 0 and not last
-        if last or counters["iteration"] % self.cfg.checkpoint_every == 0 or evaluate_now:
+        self.ended = counters["iteration"] >= self.iterations or self.stopped_by is not None
+        stop = self.ended or counters["iteration"] >= self.stop_at
+        evaluate_now = self.cfg.eval.every and counters["iteration"] % self.cfg.eval.every == 0 and not self.ended
+        if stop or counters["iteration"] % self.cfg.checkpoint_every == 0 or evaluate_now:
             sync_obs_norm(self.policy, self.vecnorm)
-            self.run.checkpoint(counters, modules, optimizers)
+            self.run.checkpoint(counters, modules, optimizers, rng={"torch": torch.get_rng_state()})
             if evaluate_now:
                 t_eval = time.perf_counter()
                 self.run.evaluate(self.policy, counters, final=False)
                 self._t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
-        return last
+        return stop
 
     def finish(self, collector) -> dict:
-        """Close the bar and the collector; the final evaluation's ``metrics.json`` (returned)."""
+        """Close the bar and the collector (None: there was nothing left to collect); the final
+        evaluation's ``metrics.json`` (returned), or ``{}`` when ``stop_after`` stopped the run first
+        (``resume=<run_dir>`` continues it)."""
         self.bar.close()
-        collector.shutdown()
+        if collector is not None:
+            collector.shutdown()
+        self.ended = self.ended or self.counters["iteration"] >= self.iterations
+        if not self.ended:
+            return {}
         sync_obs_norm(self.policy, self.vecnorm)
         return self.run.evaluate(self.policy, self.counters, budget=self.budget.record(self.stopped_by))

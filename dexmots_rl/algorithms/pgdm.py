@@ -275,7 +275,7 @@ def build(cfg: DictConfig):
 
 def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     """Train a PGDM run (:func:`.ppo.train`); returns the final metrics dict (``metrics.json``)."""
-    return ppo.train(cfg, overrides, pgdm_variant(cfg.algo))
+    return ppo.train(cfg, overrides, pgdm_variant)
 
 
 def load_policy(data: dict, env):

@@ -13,8 +13,9 @@ the current critic, then Adam steps on shuffled minibatches of the clipped PPO o
 ``dexmots-eval`` reloads, periodic evaluations, budget; at the end ``metrics.json`` with the final
 deterministic evaluation), in the run directory every method writes (:class:`~.rundir.RunDirectory`).
 
-A method that is PPO with another observation, reward, start or initialisation (PGDM, :mod:`.pgdm`) passes
-a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
+``resume=<run_dir>`` continues a run from its checkpoint (networks, normaliser, optimiser, counters; the
+episodes start afresh). A method that is PPO with another observation, reward, start or initialisation
+(PGDM, :mod:`.pgdm`) passes a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
 """
 
 from __future__ import annotations
@@ -81,11 +82,14 @@ def build(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO):
     return env, vecnorm, actor, critic, gae, loss, optimizer
 
 
-def train(cfg: DictConfig, overrides: list[str] | None = None, variant: PPOVariant = PLAIN_PPO) -> dict:
-    """Train a PPO run; returns the final metrics dict (also written to ``metrics.json``). PPO does not
-    resume (``resume=`` is refused; ``overrides`` are not used)."""
-    with RunDirectory(cfg, overrides, resumes=False) as run:
-        return _train(run, variant)
+def train(cfg: DictConfig, overrides: list[str] | None = None,
+          make_variant: Callable[..., PPOVariant] = lambda algo: PLAIN_PPO) -> dict:
+    """Train (or resume) a PPO run; returns the final metrics dict (also written to ``metrics.json``), or
+    ``{}`` when stopped early by ``stop_after``. ``overrides``: the command line's, which a resume compares
+    with its checkpoint; ``make_variant``: ``algo`` section -> the :class:`PPOVariant` (of the config that
+    trains: on resume, the checkpoint's)."""
+    with RunDirectory(cfg, overrides, resumes=True) as run:
+        return _train(run, make_variant(run.cfg.algo))
 
 
 def _train(run: RunDirectory, variant: PPOVariant) -> dict:
@@ -95,13 +99,16 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip, observation=front)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=iterations * frames_per_batch,
-                          device=cfg.device, exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False)
     loop = CollectorLoop(run, policy, vecnorm, iterations)
+    modules, optimizers = {"policy": policy, "critic": critic, "vecnorm": vecnorm}, {"optimizer": optimizer}
+    loop.restore(modules, optimizers)  # a resumed run continues from its checkpoint
     counters = loop.counters
-    for data in collector:
+    # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
+    frames = loop.frames_left(frames_per_batch)
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
+                          exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False) if frames else None
+    for data in collector or ():
         # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
         updates = 0
@@ -139,8 +146,7 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
                  "policy_std": float(data.get("scale").mean())}
         if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
             stats[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
-        if loop.end_iteration(data, stats, {"policy": policy, "critic": critic, "vecnorm": vecnorm},
-                              {"optimizer": optimizer}):
+        if loop.end_iteration(data, stats, modules, optimizers):
             break
     return loop.finish(collector)
 

@@ -4,15 +4,15 @@ the policy its checkpoints hold. ``dexmots-train algo=<name>`` runs :func:`algor
 ``dexmots-table`` lists the methods it can run.
 
 Adding a method: a module of this package with ``train(cfg, overrides=None) -> dict`` (writing its run
-through :class:`~.rundir.RunDirectory`) and, if it saves a policy, ``load_policy(checkpoint, env)``; its
+through :class:`~.rundir.RunDirectory`, which also says whether it resumes) and, if it saves a policy, ``load_policy(checkpoint, env)``; its
 defaults in ``configs/algo/<name>.yaml``; one entry in :data:`ALGORITHMS`.
 
 Example:
     >>> from dexmots_rl.algorithms.registry import algorithm, list_algorithms
     >>> list_algorithms()
     ['ahac', 'mpc', 'pgdm', 'ppo', 'sac', 'shac']
-    >>> algorithm("ahac").train is algorithm("shac").train, algorithm("mpc").resumes
-    (True, False)
+    >>> algorithm("ahac").train is algorithm("shac").train, algorithm("mpc").load_policy is None
+    (True, True)
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from ..envs import make_env
 from . import mpc, pgdm, ppo, sac, shac
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint
 
-__all__ = ["ALGORITHMS", "Algorithm", "algorithm", "list_algorithms", "policy_from_checkpoint"]
+__all__ = ["ALGORITHMS", "Algorithm", "algorithm", "list_algorithms", "policy_from_checkpoint", "train"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,13 +40,11 @@ class Algorithm:
     config: str
     #: ``(checkpoint dict, plain task env) -> policy``; None: the method saves no policy (a planner)
     load_policy: Optional[Callable] = None
-    #: whether ``resume=<run_dir>`` continues a run of it
-    resumes: bool = False
 
 
 ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (
-    Algorithm("shac", shac.train, "shac", shac.load_policy, resumes=True),
-    Algorithm("ahac", shac.train, "ahac", shac.load_policy, resumes=True),  # SHAC with the adaptive horizon
+    Algorithm("shac", shac.train, "shac", shac.load_policy),
+    Algorithm("ahac", shac.train, "ahac", shac.load_policy),  # SHAC with the adaptive horizon
     Algorithm("ppo", ppo.train, "ppo", ppo.load_policy),
     Algorithm("sac", sac.train, "sac", sac.load_policy),
     Algorithm("pgdm", pgdm.train, "pgdm", pgdm.load_policy),
@@ -64,6 +62,15 @@ def algorithm(name: str) -> Algorithm:
     if name not in ALGORITHMS:
         raise ValueError(f"algo {name!r} is unknown; known: {', '.join(list_algorithms())}")
     return ALGORITHMS[name]
+
+
+def train(cfg, overrides: list[str] | None = None) -> dict:
+    """Run ``cfg`` with its method; on resume, with the method of the checkpoint's run (the run directory
+    then checks that ``cfg`` asks for nothing else, :func:`.rundir.resume_config`)."""
+    name = cfg.algo.name
+    if cfg.resume:
+        name = load_checkpoint(latest_checkpoint(cfg.resume)).get("algo", name)
+    return algorithm(name).train(cfg, overrides)
 
 
 def policy_from_checkpoint(path, device="cpu"):

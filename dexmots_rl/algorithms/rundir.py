@@ -37,8 +37,8 @@ log = logging.getLogger(__name__)
 RUN_FILES = ("checkpoints", "metrics.jsonl", "metrics.json", "config.yaml", "logs", "eval.json", "eval.mcap")
 #: resume keeps the checkpoint's values of these; an override that differs is a conflict
 LOCKED = ("task", "algo", "seed")
-#: ... except these, which a resumed run may change (a longer schedule)
-RESUME_MAY_CHANGE = ("algo.iterations",)
+#: ... except these, which a resumed run may change (a longer schedule: SHAC's iterations, PPO's frames)
+RESUME_MAY_CHANGE = ("algo.iterations", "algo.total_frames")
 
 
 def holds_run(run_dir: Path) -> bool:
@@ -178,9 +178,14 @@ def resume_config(cfg, checkpoint: dict, source, overrides: list[str] | None):
         more = f" and {len(conflicts) - 3} more" if len(conflicts) > 3 else ""
         raise CheckpointError(f"resume={source}: {', '.join(conflicts[:3])}{more} conflict with the checkpoint; a resumed "
                               "run keeps its checkpoint's task, algo and seed (drop those overrides or start a new run)")
-    merged = OmegaConf.merge(cfg, {k: saved[k] for k in LOCKED if k in saved})
+    base = cfg
+    other = [k for k in ("task", "algo") if isinstance(saved.get(k), dict)
+             and _select(mine, f"{k}.name") != saved[k].get("name")]
+    if other:  # the command line's defaults name another task or method: the checkpoint's section replaces it
+        base = OmegaConf.create({k: v for k, v in mine.items() if k not in other})
+    merged = OmegaConf.merge(base, {k: saved[k] for k in LOCKED if k in saved})
     for key in RESUME_MAY_CHANGE:
-        if overrides is None or key in _override_keys(overrides):
+        if (overrides is None or key in _override_keys(overrides)) and OmegaConf.select(cfg, key) is not None:
             OmegaConf.update(merged, key, OmegaConf.select(cfg, key), merge=False)
     # the run continues in the resumed directory: its config names it (not the command line's default)
     OmegaConf.update(merged, "run_dir", str(source), merge=False)

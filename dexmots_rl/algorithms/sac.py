@@ -83,11 +83,11 @@ def _train(run: RunDirectory) -> dict:
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=iterations * frames_per_batch,
-                          init_random_frames=int(a.init_random_frames), device=cfg.device,
+    loop = CollectorLoop(run, policy, vecnorm, iterations)  # a fresh run: SAC does not resume
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch,
+                          total_frames=loop.frames_left(frames_per_batch), init_random_frames=int(a.init_random_frames), device=cfg.device,
                           exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
     updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
-    loop = CollectorLoop(run, policy, vecnorm, iterations)
     counters = loop.counters
     counters["updates"] = 0
     for data in collector:

@@ -4,7 +4,7 @@
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
-    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac | pgdm (no resume)
+    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac | pgdm
     dexmots-train algo=mpc                          # sampling MPC + gradient refinement: evaluation only
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
@@ -46,7 +46,7 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
     command line's, which a resume compares with its checkpoint (:func:`dexmots_rl.algorithms.rundir.resume_config`)."""
     import torch
 
-    from ..algorithms.registry import algorithm
+    from ..algorithms.registry import train
 
     threads = cfg.get("torch_threads")
     if threads is not None:
@@ -54,7 +54,7 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
             raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
         if str(cfg.device).startswith("cpu"):
             torch.set_num_threads(threads)
-    return algorithm(cfg.algo.name).train(cfg, overrides)
+    return train(cfg, overrides)
 
 
 def main() -> None:
