@@ -4,8 +4,9 @@ the policy its checkpoints hold. ``dexmots-train algo=<name>`` runs :func:`algor
 ``dexmots-table`` lists the methods it can run.
 
 Adding a method: a module of this package with ``train(cfg, overrides=None) -> dict`` (writing its run
-through :class:`~.rundir.RunDirectory`, which also says whether it resumes) and, if it saves a policy, ``load_policy(checkpoint, env)``; its
-defaults in ``configs/algo/<name>.yaml``; one entry in :data:`ALGORITHMS`.
+through :class:`~.rundir.RunDirectory`, which also says whether it resumes) and, if it saves a policy,
+``load_policy(checkpoint, env)``; its defaults in ``configs/algo/<name>.yaml``; one entry in
+:data:`ALGORITHMS`.
 
 Example:
     >>> from dexmots_rl.algorithms.registry import algorithm, list_algorithms

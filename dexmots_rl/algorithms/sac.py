@@ -85,8 +85,9 @@ def _train(run: RunDirectory) -> dict:
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
     loop = CollectorLoop(run, policy, vecnorm, iterations)  # a fresh run: SAC does not resume
     collector = Collector(env, actor, frames_per_batch=frames_per_batch,
-                          total_frames=loop.frames_left(frames_per_batch), init_random_frames=int(a.init_random_frames), device=cfg.device,
-                          exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+                          total_frames=loop.frames_left(frames_per_batch), init_random_frames=int(a.init_random_frames),
+                          device=cfg.device, exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)
     updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
     counters = loop.counters
     counters["updates"] = 0
