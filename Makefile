@@ -1,7 +1,7 @@
 # Two commands on a fresh machine with Python 3.11 + pip:
 #   make run    set up .venv and run the main job
 #   make test   set up .venv and run the test suite
-# Warp kernels compile once per scene/precision (~1-2 min each on 2 cores) and are cached in
+# Warp kernels compile once per scene and precision (docs/results.md, compile times) and are cached in
 # ~/.cache/warp (or $WARP_CACHE_PATH), which survives fresh clones on the same machine.
 
 PYTHON ?= python3.11

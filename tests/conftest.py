@@ -1,6 +1,6 @@
 """Shared fixtures for the dexmots_rl test suite.
 
-Warp compiles one kernel module per scene structure and float type (~1-2 min each on 2 CPU cores, then
+Warp compiles one kernel module per scene structure and float type (docs/results.md, compile times; then
 cached on disk), so the whole suite deliberately uses only three specialisations:
 
 * the claw scene in float32 (the envs' default dtype),
@@ -8,7 +8,7 @@ cached on disk), so the whole suite deliberately uses only three specialisations
 * the 3D oracle scene ``tests/assets/chain3d.xml`` in float64 (dynamics against MuJoCo).
 
 ``Simulator`` objects are cheap once their kernels are loaded (``build_kernels`` is cached per process), so
-tests build the number of worlds they need from the session-scoped scenes below.
+tests build the number of worlds they need from the scenes below, which are built once per test run.
 """
 
 from __future__ import annotations

@@ -283,8 +283,8 @@ def test_claw_mirrored_turning_states_stay_mirrored():
     """test_claw_mirror_symmetry's states are their own mirror images; here two worlds hold an asymmetric state
     (knob turned, random velocities and torques) and its mirror image (left and right fingers swapped with their
     angles negated, the knob's angle negated). Stepped in contact while the knob turns, they stay mirror images
-    to the bit, so the physics favours neither turning direction (docs/results.md, session 14: policies that
-    learn one direction only)."""
+    to the bit, so the physics favours neither turning direction (the claw's policies without the mirror that
+    learnt one direction only did not learn it from the physics)."""
     from dexmots_rl.apps.bench_setup import bench_task
     from dexmots_rl.envs import task_contact, task_scene
     from dexmots_rl.sim import Control, Simulator

@@ -1,4 +1,4 @@
-"""Issue #16.7: the gymnasium facade: make_vec over batched worlds, SAME_STEP autoreset, spaces, env checker."""
+"""The gymnasium facade: make_vec over batched worlds, SAME_STEP autoreset, spaces, env checker."""
 
 from __future__ import annotations
 

@@ -179,7 +179,7 @@ def test_the_turn_breakdowns_recover_the_goals_angles_about_z_and_x():
 
 
 def test_a_cube_config_saved_before_the_default_changed_keeps_its_fixed_centre():
-    """Cube checkpoints saved before session 17 have no rest_on_palm and were trained with the centre fixed; other
+    """Cube checkpoints saved before rest_on_palm existed have no such field and were trained with the centre fixed; other
     tasks' saved configs are not given the cube's field."""
     from dexmots_rl.envs import task_config
     from dexmots_rl.envs.config import config_from_dict, saved_config_defaults

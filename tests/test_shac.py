@@ -224,7 +224,7 @@ def test_forward_reuses_existing_targets_and_matches_parts():
 
 
 def test_critic_loss_computes_missing_targets_like_torchrl_losses():
-    # issue #16.11: a rollout without TD(lambda) targets used to raise KeyError
+    # a rollout without TD(lambda) targets gets them computed, as torchrl's losses do (not a KeyError)
     td = tiny_rollout()
     loss = make_loss()
     expected = loss.critic_loss(loss.critic_targets(td))

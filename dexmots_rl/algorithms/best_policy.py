@@ -1,7 +1,7 @@
 """Keep the best policy seen in training, and roll back to it after a collapse.
 
 SHAC/AHAC on screw_claw occasionally learns and then loses the task (a run's training success peaked at
-~0.7 and fell to ~0.3 over 40 iterations before recovering, docs/results.md, session 11). DiffRL's SHAC
+~0.7 and fell to ~0.3 over 40 iterations before recovering; docs/devnotes.md, training). DiffRL's SHAC
 keeps the policy with the best training return for the same reason. Here the score is the mean
 training-episode success over the last ``window`` iterations that finished episodes, judged only on
 training data (never on evaluation episodes, so the final evaluation stays an unseen measurement).

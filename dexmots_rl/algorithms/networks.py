@@ -67,7 +67,7 @@ def make_networks(obs_dim: int, action_dim: int, hidden=(256, 128), init_log_std
     actor's widths, and the critic's unless ``critic_hidden`` is given.
 
     ``layer_norm`` puts a LayerNorm after every hidden layer, as DiffRL's SHAC networks do: without it the
-    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, session 2)."""
+    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, training)."""
     norm = RunningNorm(obs_dim)
     body = _mlp(obs_dim, action_dim, hidden, layer_norm)
     # the scale parameter is a log-std (exp mapping), as in SHAC's Gaussian actor

@@ -255,7 +255,7 @@ def _smooth_scale(algo, scale: float, share: float) -> float:
     """The smoothness weights' factor in [0, 1]: 1 without ``smooth_clip_target``; otherwise a dual variable
     that rises while this iteration's clipped-adjoint share is above the target and falls below it. The
     failing runs' share rose from ~0.1 % to 3-10 % as their policies became jumpy, while a fixed penalty
-    slowed the runs that learnt (docs/results.md, session 11), so the penalty acts only in that regime."""
+    slowed the runs that learnt (docs/devnotes.md, training), so the penalty acts only in that regime."""
     if algo.smooth_clip_target is None:
         return 1.0
     return min(1.0, max(0.0, scale + algo.smooth_dual_lr * (share - algo.smooth_clip_target)))

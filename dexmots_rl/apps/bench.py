@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 
 # targets the gradient benchmark reports against (not used to tune anything)
 GOALS = {"median_rel_err_with_contact": 0.05, "grad_growth_at_longest_horizon": 10.0}
-TRAIN_GOAL_SUCCESS = 0.9  # issue #5: success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)
+TRAIN_GOAL_SUCCESS = 0.9  # the success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,7 +4,7 @@ Why it is here: on screw_claw the AHAC runs that failed had learnt policies whos
 between consecutive steps (final-policy temporal loss 0.9-1.7 against 0.1-0.4 in the runs that learnt),
 and a closed loop like that amplifies the gradient through the simulator over the horizon (the clipped
 adjoint share rose from ~0.1 % to 3-6 %). Penalising the jumps directly keeps the policy out of that
-regime without touching the simulator's gradient (docs/results.md, session 11).
+regime without touching the simulator's gradient (docs/devnotes.md, training).
 
 Both terms read detached observations, so they act on the policy's weights only:
 

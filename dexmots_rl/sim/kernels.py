@@ -30,12 +30,12 @@ from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
 __all__ = ["build_kernels"]
 
-# clang optimisation level for the CPU build: -O2 runs 2.5x faster than -O1 at the same compile time
-# (~85 s for the claw substep kernel with its adjoint, 2 cores); -O0 compiles in 14 s but runs 18x slower.
+# clang optimisation level for the CPU build: -O2 runs 2.5x faster than -O1 at about the same compile time
+# (docs/results.md, compile times); -O0 compiles faster but runs 18x slower.
 # Override with DEXMOTS_WARP_OPT=0..3 (e.g. 0 while iterating on kernel code).
 OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "2"))
 # CUDA builds only: warp 1.19 does not pass fast_math to its CPU compiler (a CPU run with it set measured the
-# same within noise, session 12)
+# same within noise)
 FAST_MATH = os.environ.get("DEXMOTS_WARP_FAST_MATH", "0") == "1"
 LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
 LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them

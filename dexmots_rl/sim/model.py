@@ -209,6 +209,77 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
 
+    hand_fields = _hand_chains(m, d, path, contact)
+    hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
+    obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+    if is_articulated_scene(m):
+        from .articulated import ArticulatedScene, object_geoms
+        from .object_model import object_tree
+
+        return ArticulatedScene(path=str(path), hand=hand_fields, tree=object_tree(m, d), geoms=object_geoms(m),
+                                palm=_palm_boxes(m, d, hand, [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]))
+    if m.body_jntnum[obj] != 1:
+        raise AssetError("body 'object' needs exactly one joint (hinge or free)")
+    oj = int(m.body_jntadr[obj])
+    if int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_HINGE):
+        kind, q0 = OBJECT_HINGE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 1].copy()
+    elif int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_FREE):
+        kind, q0 = OBJECT_FREE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 7].copy()
+    else:
+        raise AssetError("the object joint must be a hinge or a free joint")
+    parent = m.body_parentid[obj]
+    base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
+    base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
+    shape, planes, size, bound, (sdf, sdf_origin, sdf_cell) = _object_shape(m, obj)
+    omass, ocom, oinertia = _body_inertia(m, obj)
+    box_pos, box_rot, box_half = _base_boxes(m, d, obj)
+    odof = int(m.jnt_dofadr[oj])
+    ogeom = [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]
+    palm = _palm_boxes(m, d, hand, ogeom) if kind == OBJECT_FREE else (np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    samples = _object_points(m, ogeom) if len(palm[0]) else (np.zeros((0, 3)), np.zeros(0))
+
+    hand_fields["body_names"] = hand_fields["body_names"] + ["object"]
+    return SceneModel(
+        path=str(path),
+        **hand_fields,
+        object_kind=kind,
+        object_base_pos=base_pos,
+        object_base_rot=base_rot,
+        object_axis=m.jnt_axis[oj].copy(),
+        object_mass=omass,
+        object_com=ocom,
+        object_inertia=oinertia,
+        object_armature=float(m.dof_armature[odof]),
+        object_damping=float(m.dof_damping[odof]),
+        object_friction=float(m.dof_frictionloss[odof]),
+        object_stiffness=float(m.jnt_stiffness[oj]),
+        object_rest=float(m.qpos_spring[m.jnt_qposadr[oj]]) if kind == OBJECT_HINGE else 0.0,
+        object_q0=q0,
+        object_shape=shape,
+        object_planes=planes,
+        object_shape_size=size,
+        object_bound=bound,
+        object_sdf=sdf,
+        object_sdf_origin=sdf_origin,
+        object_sdf_cell=sdf_cell,
+        palm_box_pos=palm[0],
+        palm_box_rot=palm[1],
+        palm_box_half=palm[2],
+        object_point_pos=samples[0],
+        object_point_radius=samples[1],
+        base_box_pos=box_pos,
+        base_box_rot=box_rot,
+        base_box_half=box_half,
+        object_limited=bool(m.jnt_limited[oj]) and kind == OBJECT_HINGE,
+        object_range=(float(m.jnt_range[oj, 0]), float(m.jnt_range[oj, 1])) if m.jnt_limited[oj] else (-1e9, 1e9),
+    )
+
+
+def _hand_chains(m, d, path: Path, contact: ContactParams) -> dict:
+    """The hand's fields of :class:`SceneModel` (finger chains, contact spheres, drives), read from the compiled
+    model ``m`` / data ``d`` of ``path``; the object's body must exist (its geometry is read elsewhere)."""
+    import mujoco
+
     def name(obj, i):
         return mujoco.mj_id2name(m, obj, i) or f"#{i}"
 
@@ -275,34 +346,12 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     dofs = np.arange(num_f * num_j)
     limited = m.jnt_limited[jids].astype(bool)
 
-    if m.body_jntnum[obj] != 1:
-        raise AssetError("body 'object' needs exactly one joint (hinge or free)")
-    oj = int(m.body_jntadr[obj])
-    if int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_HINGE):
-        kind, q0 = OBJECT_HINGE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 1].copy()
-    elif int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_FREE):
-        kind, q0 = OBJECT_FREE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 7].copy()
-    else:
-        raise AssetError("the object joint must be a hinge or a free joint")
-    parent = m.body_parentid[obj]
-    base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
-    base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
-    shape, planes, size, bound, (sdf, sdf_origin, sdf_cell) = _object_shape(m, obj)
-    omass, ocom, oinertia = _body_inertia(m, obj)
-    box_pos, box_rot, box_half = _base_boxes(m, d, obj)
-    odof = int(m.jnt_dofadr[oj])
-    ogeom = [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]
-    palm = _palm_boxes(m, d, hand, ogeom) if kind == OBJECT_FREE else (np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
-    samples = _object_points(m, ogeom) if len(palm[0]) else (np.zeros((0, 3)), np.zeros(0))
-
-    return SceneModel(
-        path=str(path),
+    return dict(
         num_fingers=num_f,
         joints_per_finger=num_j,
         points_per_link=num_p,
         finger_names=[name(mujoco.mjtObj.mjOBJ_BODY, c[0]) for c in chains],
         joint_names=[name(mujoco.mjtObj.mjOBJ_JOINT, j) for j in jids],
-        body_names=[name(mujoco.mjtObj.mjOBJ_BODY, b) for b in hand_bodies] + ["object"],
         finger_base_pos=np.stack([d.xpos[hand]] * num_f),
         finger_base_rot=np.stack([d.xmat[hand].reshape(3, 3)] * num_f),
         link_offset_pos=m.body_pos[hand_bodies].copy(),
@@ -324,36 +373,16 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         point_pos=point_pos,
         point_radius=point_radius,
         tip_pos=np.stack(tips),
-        object_kind=kind,
-        object_base_pos=base_pos,
-        object_base_rot=base_rot,
-        object_axis=m.jnt_axis[oj].copy(),
-        object_mass=omass,
-        object_com=ocom,
-        object_inertia=oinertia,
-        object_armature=float(m.dof_armature[odof]),
-        object_damping=float(m.dof_damping[odof]),
-        object_friction=float(m.dof_frictionloss[odof]),
-        object_stiffness=float(m.jnt_stiffness[oj]),
-        object_rest=float(m.qpos_spring[m.jnt_qposadr[oj]]) if kind == OBJECT_HINGE else 0.0,
-        object_q0=q0,
-        object_shape=shape,
-        object_planes=planes,
-        object_shape_size=size,
-        object_bound=bound,
-        object_sdf=sdf,
-        object_sdf_origin=sdf_origin,
-        object_sdf_cell=sdf_cell,
+        body_names=[name(mujoco.mjtObj.mjOBJ_BODY, b) for b in hand_bodies],
         gravity=m.opt.gravity.copy(),
         timestep=float(m.opt.timestep),
-        palm_box_pos=palm[0],
-        palm_box_rot=palm[1],
-        palm_box_half=palm[2],
-        object_point_pos=samples[0],
-        object_point_radius=samples[1],
-        base_box_pos=box_pos,
-        base_box_rot=box_rot,
-        base_box_half=box_half,
-        object_limited=bool(m.jnt_limited[oj]) and kind == OBJECT_HINGE,
-        object_range=(float(m.jnt_range[oj, 0]), float(m.jnt_range[oj, 1])) if m.jnt_limited[oj] else (-1e9, 1e9),
     )
+
+
+def is_articulated_scene(m) -> bool:
+    """Whether body ``object`` of the compiled model is an articulated tree (a base with moving parts below it,
+    see :mod:`.object_model`) rather than the single hinged or free body of the knob and cube scenes."""
+    import mujoco
+
+    obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+    return obj >= 0 and any(int(m.body_parentid[b]) == obj for b in range(obj + 1, m.nbody))

@@ -33,7 +33,7 @@ __all__ = ["ScrewClawConfig", "ScrewClawEnv", "scripted_claw_action", "INITIAL_P
 # hand joints (right prox, right distal, left prox, left distal); "open" uses open_angle
 # "grasp": the distal links resting on the knob (~6 N of contact at rest). The first grasp, distal joints at
 # -+0.6, overlapped the knob by centimetres: the first step kicked it with ~490 N and policies learnt to
-# flick the knob with that kick and coast (docs/devnotes.md, session 5).
+# flick the knob with that kick and coast.
 INITIAL_POSES = {"open": None, "grasp": (0.5, -0.42, -0.5, 0.42)}
 
 

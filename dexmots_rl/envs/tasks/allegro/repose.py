@@ -14,7 +14,7 @@ reference's centre rise with their tilt so that the turned cube's lowest corner 
 carried (``-m g``, no torque: a quasi-static rotation at this speed needs ~1e-4 N m). The measured wrench is the
 whole hand's push, palm included, so it matches the reference however hard the fingers squeeze or push against the palm's
 friction (it is the wrench planner's "external wrench besides gravity" too). Measured fingers-only, the
-same term made the policy leave the cube still (0 %, docs/results.md).
+same term made the policy leave the cube still (0 %, docs/devnotes.md, the functional env).
 
 Reward (paper Eq. 1-3): ``λ_pose exp(-‖(pos_scale Δx, θ)‖) + λ_wrench exp(-‖Δf / force_scale, Δτ /
 torque_scale‖) - λ_act ‖w ⊙ a‖ + λ_f Σ_i exp(-‖x_fi - x_o‖ / fingertip_scale)``.
@@ -52,7 +52,7 @@ __all__ = ["ReposeCubeConfig", "ReposeCubeEnv", "REST", "original_test"]
 # its top face near the -x edge, the thumb tip 2 cm above it (MuJoCo forward kinematics). It is both the
 # start pose and the zero action (ActionMap's center): mid-range targets hold the fingertips 6-11 cm from
 # the cube, where the simulator's gradient cannot tell them how to turn it, and tips on the top face can
-# roll the cube about x by sliding sideways (j0), which tips on its -x face did not learn (docs/results.md)
+# roll the cube about x by sliding sideways (j0), which tips on its -x face did not learn (they only spun it about z)
 REST = (0.0, 1.152, 1.284, 0.252) * 3 + (0.49, 1.16, 0.791, 1.328)
 OPEN = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)
 CUBE = (0.0, 0.0, 0.1325, 1.0, 0.0, 0.0, 0.0)  # resting on the palm (the MJCF's start)
@@ -79,7 +79,7 @@ class ReposeCubeConfig(TaskConfig):
     drop_penalty: float = 20.0  # reward lost on the step the cube falls (the episode then terminates)
     rest_on_palm: bool = True  # the goal's and the reference's centre rise with their tilt so that the turned cube
     # still rests on the palm (a fixed centre puts a tilted cube's lower edge up to 1.3 cm into the palm; False
-    # keeps the centre where the cube starts, the default before session 17)
+    # keeps the centre where the cube starts, as configs saved without this field were trained)
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
 
@@ -186,7 +186,7 @@ class ReposeCubeEnv(DexEnv):
         c = self.config
         hand = self._rest.expand(n, -1)
         # ±0.05 rad put a finger up to 6 mm into the cube and 5.2 % of the starts blew up in the first step;
-        # redrawn above 1.5 mm, none of 2048 did (docs/results.md, session 11). After a few redraws such a world
+        # redrawn above 1.5 mm, none of 2048 did. After a few redraws such a world
         # starts from the rest pose
         redraw = torch.ones(n, dtype=torch.bool, device=self.device)
         for _ in range(8 if c.joint_noise > 0 else 0):

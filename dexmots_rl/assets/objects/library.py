@@ -1,0 +1,72 @@
+"""The named objects that ship with the package, and the one entry point that loads any object.
+
+Every instance is its generator called with fixed parameters (no random draw), so it is the same object
+on every machine. :func:`load_object` takes a library name or the path of a URDF file (PartNet-Mobility layout).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+from .description import ObjectAsset, ObjectError
+from .generators import GENERATORS, PARAMS
+
+__all__ = ["INSTANCES", "list_objects", "load_object"]
+
+# name -> (class, parameter overrides); the first instance of a class uses the class's defaults
+INSTANCES: dict[str, tuple[str, dict]] = {
+    "spray_bottle_a": ("spray_bottle", {}),
+    "spray_bottle_b": ("spray_bottle", dict(body_radius=0.032, body_height=0.165, head_length=0.065,
+                                            trigger_length=0.05, trigger_travel=0.35, trigger_stiffness=0.2,
+                                            body_mass=0.25)),
+    "scissors_a": ("scissors", {}),
+    "scissors_b": ("scissors", dict(blade_length=0.065, handle_length=0.05, ring_radius=0.01, opening=0.5,
+                                    stiffness=0.04, friction=0.005, half_mass=0.025)),
+    "stapler_a": ("stapler", {}),
+    "stapler_b": ("stapler", dict(length=0.115, width=0.036, arm_length=0.105, open_angle=0.4, stiffness=0.3,
+                                  preload=0.3, arm_mass=0.07, base_mass=0.1)),
+    "pump_dispenser_a": ("pump_dispenser", {}),
+    "pump_dispenser_b": ("pump_dispenser", dict(body_radius=0.04, body_height=0.075, head_radius=0.018,
+                                                spout_length=0.032, stroke=0.015, stiffness=110.0,
+                                                body_mass=0.4)),
+    "jar_a": ("jar", {}),
+    "jar_b": ("jar", dict(body_radius=0.032, body_height=0.1, lid_height=0.016, ribs=18, turn=2.5,
+                          friction=0.06, body_mass=0.25)),
+    "valve_a": ("valve", {}),
+    "valve_b": ("valve", dict(spokes=4, spoke_length=0.05, spoke_radius=0.01)),
+    "valve_c": ("valve", dict(spokes=5, hub_radius=0.022, turn=3.14, friction=0.03)),
+    "drawer_a": ("drawer", {}),
+    "drawer_b": ("drawer", dict(width=0.16, height=0.08, handle_width=0.06, travel=0.06, friction=0.8)),
+    "pliers_a": ("pliers", {}),
+    "pliers_b": ("pliers", dict(jaw_length=0.032, handle_length=0.09, handle_spread=0.02, grip_radius=0.005,
+                                half_mass=0.04, stiffness=0.07)),
+    "door_handle_a": ("door_handle", {}),
+    "door_handle_b": ("door_handle", dict(lever_length=0.09, lever_radius=0.007, handle_height=0.12,
+                                          turn=0.65, stiffness=0.2, lever_mass=0.05)),
+}
+
+
+def list_objects() -> list[tuple[str, str]]:
+    """``[(name, class), ...]`` of every shipped object, in a stable order."""
+    return [(name, object_class) for name, (object_class, _) in INSTANCES.items()]
+
+
+def load_object(name_or_path: str | Path, **urdf_options) -> ObjectAsset:
+    """A shipped object by name (``list_objects()``), or an object read from a URDF file (a path ending in
+    ``.urdf``; ``urdf_options`` go to :func:`dexmots_rl.assets.objects.urdf.load_urdf`)."""
+    text = str(name_or_path)
+    if text.lower().endswith(".urdf"):
+        from .urdf import load_urdf  # the URDF reader pulls in MuJoCo's compiler: only when asked for
+
+        return load_urdf(name_or_path, **urdf_options)
+    if urdf_options:
+        raise ObjectError(f"load_object({text!r}): options {sorted(urdf_options)} apply to URDF files only")
+    if text not in INSTANCES:
+        raise ObjectError(f"unknown object {text!r}: give a path ending in .urdf or one of "
+                          f"{sorted(INSTANCES)}")
+    object_class, overrides = INSTANCES[text]
+    generator: Callable[..., ObjectAsset] = GENERATORS[object_class]
+    params = dataclasses.replace(PARAMS[object_class](), **overrides)
+    return generator(params, name=text)

@@ -1,0 +1,325 @@
+"""Warp kernels of the articulated object (sim/object_model.py): one substep of the object tree per world.
+
+One thread per world: the bodies' kinematics (base, then each part through its hinge or slide), the
+table's contact on each body's surface samples, the tree's mass matrix and bias forces (a sum over bodies of
+J^T M J and J^T (inertial - applied) wrenches, with J each body's com/angular velocity Jacobian), the joint
+springs, dampers, Coulomb friction and range stops, and a linearly implicit solve: joint damping, springs and
+stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity).
+
+Generalized coordinates (per world): a free base's origin position (m) and orientation (w, x, y, z), then the
+parts' joint positions (rad or m); velocities: the base origin's linear velocity and the base's angular
+velocity (world frame), then the joint velocities. The solve is block elimination over [base translation (3),
+base rotation (3), joints (P)], with warp's 3x3 and P x P inverses (P <= 4). Everything is generic in the
+float type (float64 for gradient checks); loops have compile-time trip counts, so warp's adjoint is exact.
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import functools
+import types
+
+import warp as wp
+
+__all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
+
+LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth
+LIMIT_CURVE = 0.5 / LIMIT_WIDTH
+LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
+JOINT_FRICTION_VELOCITY = 0.05  # rad/s (or m/s): smoothing of the joints' Coulomb friction
+
+
+@functools.lru_cache(maxsize=None)
+def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, table: bool):
+    """The kernels for an object tree of ``num_bodies`` bodies (base + parts), a free or fixed base,
+    ``samples`` table-contact samples per body, with or without a table."""
+    dtype = float_type
+    B = int(num_bodies)
+    NP = B - 1
+    FREE = bool(free)
+    S = int(samples)
+    TABLE = bool(table) and FREE
+    assert NP >= 1 or FREE, "a fixed object needs a moving part"
+    NPV = max(NP, 1)  # warp types need a positive size; with NP == 0 the joint block is compiled out
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    quat = wp.types.quaternion(dtype)
+    vecP = wp.types.vector(NPV, dtype)
+    mat3P = wp.types.matrix((3, NPV), dtype)
+    matPP = wp.types.matrix((NPV, NPV), dtype)
+
+    @wp.struct
+    class Model:
+        parent: wp.array(dtype=wp.int32)  # [B]
+        off_pos: wp.array(dtype=vec3)  # [B] m, parent frame (the base: world frame, fixed base only)
+        off_rot: wp.array(dtype=mat33)  # [B]
+        jkind: wp.array(dtype=wp.int32)  # [NP] 0 hinge, 1 slide
+        jaxis: wp.array(dtype=vec3)  # [NP] part frame, unit
+        janchor: wp.array(dtype=vec3)  # [NP] m, part frame
+        jlower: wp.array(dtype=dtype)  # [NP] rad or m
+        jupper: wp.array(dtype=dtype)
+        limit_ke: wp.array(dtype=dtype)  # [NP] N m/rad or N/m: the range stops' stiffness
+        armature: wp.array(dtype=dtype)  # [NP]
+        ancestor: wp.array2d(dtype=dtype)  # [B, NP] 1 where joint k moves body b
+        mass: wp.array(dtype=dtype)  # [B] kg
+        com: wp.array(dtype=vec3)  # [B] m, body frame
+        inertia: wp.array(dtype=mat33)  # [B] kg m^2 about the com, body frame
+        sample_pos: wp.array2d(dtype=vec3)  # [B, S] m, body frame
+        sample_radius: wp.array2d(dtype=dtype)  # [B, S] m (< 0: padding)
+        gravity: vec3
+        table_z: dtype  # m
+        ke: dtype  # N/m per sample: the table's penalty stiffness
+        beta: dtype  # 1/m: softplus sharpness of the penalty
+        kd: dtype  # s/m: Hunt-Crossley damping of the normal force
+        mu: dtype  # Coulomb friction coefficient against the table
+        v_slip: dtype  # m/s: slip velocity smoothing the friction
+
+    @wp.func
+    def softplus(x: dtype, beta: dtype):
+        bx = beta * x
+        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def limit_ramp(x: dtype):
+        if x <= dtype(0.0):
+            return dtype(0.0)
+        if x < dtype(LIMIT_WIDTH):
+            return x * x * dtype(LIMIT_CURVE)
+        return x - dtype(LIMIT_OFFSET)
+
+    @wp.func
+    def limit_slope(x: dtype):
+        if x <= dtype(0.0):
+            return dtype(0.0)
+        if x < dtype(LIMIT_WIDTH):
+            return x * dtype(2.0 * LIMIT_CURVE)
+        return dtype(1.0)
+
+    @wp.func
+    def axis_angle(a: vec3, t: dtype):
+        c = wp.cos(t)
+        s = wp.sin(t)
+        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
+
+    @wp.func
+    def unit_p(k: int):
+        e = vecP()
+        e[k] = dtype(1.0)
+        return e
+
+    @wp.func
+    def solve_pp(A: matPP, b: vecP):
+        if wp.static(NPV == 1):
+            return vecP(b[0] / A[0, 0])
+        return wp.inverse(A) * b
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def substep(
+        m: Model,
+        q: wp.array2d(dtype=dtype),  # [N, nq] in
+        qd: wp.array2d(dtype=dtype),  # [N, nv] in
+        params: wp.array2d(dtype=dtype),  # [N, 4 * NP] per joint: damping, friction, stiffness, rest
+        ext: wp.array2d(dtype=dtype),  # [N, 6 * B] per body: force (N) and torque about its com (N m), world
+        dt: dtype,
+        body_x: wp.array2d(dtype=vec3),  # [N, B] scratch (this substep's): body origins
+        body_R: wp.array2d(dtype=mat33),  # [N, B] scratch: body rotations
+        body_w: wp.array2d(dtype=vec3),  # [N, B] scratch: angular velocities
+        body_al: wp.array2d(dtype=vec3),  # [N, B] scratch: velocity-product angular accelerations
+        body_c: wp.array2d(dtype=vec3),  # [N, B] scratch: com positions
+        body_ac: wp.array2d(dtype=vec3),  # [N, B] scratch: velocity-product com accelerations
+        joint_a: wp.array2d(dtype=vec3),  # [N, NP] scratch: joint axes (world)
+        joint_o: wp.array2d(dtype=vec3),  # [N, NP] scratch: joint anchors (world)
+        q_out: wp.array2d(dtype=dtype),  # [N, nq]
+        qd_out: wp.array2d(dtype=dtype),  # [N, nv]
+    ):
+        w = wp.tid()
+        qo = 7 * int(FREE)  # first joint coordinate
+        vo = 6 * int(FREE)  # first joint velocity
+        # joint state (and its velocity) as vectors, read once
+        qj = vecP()
+        qdj = vecP()
+        for k in range(NP):
+            qj = qj + q[w, qo + k] * unit_p(k)
+            qdj = qdj + qd[w, vo + k] * unit_p(k)
+        # the base
+        x0 = m.off_pos[0]
+        R0 = m.off_rot[0]
+        v0 = vec3()
+        w0 = vec3()
+        if wp.static(FREE):
+            x0 = vec3(q[w, 0], q[w, 1], q[w, 2])
+            R0 = wp.quat_to_matrix(quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3]))
+            v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
+            w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
+        # block sums of the mass matrix [T R P] and of the right-hand side
+        M11 = mat33()
+        M12 = mat33()
+        M13 = mat3P()
+        M22 = mat33()
+        M23 = mat3P()
+        M33 = matPP()
+        r1 = vec3()
+        r2 = vec3()
+        r3 = vecP()
+        for b in range(B):
+            x = x0
+            R = R0
+            om = w0
+            al = vec3()
+            c = vec3()
+            ac = vec3()
+            if b > 0:
+                p = m.parent[b]
+                k = b - 1
+                xp = body_x[w, p]
+                Rp = body_R[w, p]
+                omp = body_w[w, p]
+                alp = body_al[w, p]
+                cp = body_c[w, p]
+                acp = body_ac[w, p]
+                R = Rp * m.off_rot[b]
+                a = R * m.jaxis[k]
+                o = xp + Rp * m.off_pos[b] + R * m.janchor[k]
+                joint_a[w, k] = a
+                joint_o[w, k] = o
+                a_o = acp + wp.cross(alp, o - cp) + wp.cross(omp, wp.cross(omp, o - cp))
+                if m.jkind[k] == 0:
+                    R = R * axis_angle(m.jaxis[k], qj[k])
+                    x = o - R * m.janchor[k]
+                    om = omp + a * qdj[k]
+                    al = alp + wp.cross(omp, a * qdj[k])
+                else:
+                    x = o - R * m.janchor[k] + a * qj[k]
+                    om = omp
+                    al = alp
+                c = x + R * m.com[b]
+                if m.jkind[k] == 0:
+                    ac = a_o + wp.cross(al, c - o) + wp.cross(om, wp.cross(om, c - o))
+                else:
+                    ac = acp + wp.cross(alp, c - cp) + wp.cross(omp, wp.cross(omp, c - cp)) + dtype(2.0) * wp.cross(omp, a * qdj[k])
+            else:
+                c = x + R * m.com[0]
+                ac = wp.cross(om, wp.cross(om, c - x0))
+            body_x[w, b] = x
+            body_R[w, b] = R
+            body_w[w, b] = om
+            body_al[w, b] = al
+            body_c[w, b] = c
+            body_ac[w, b] = ac
+            # this body's Jacobians over the joints: com velocity Jv and angular velocity Jw
+            Jv = mat3P()
+            Jw = mat3P()
+            for kk in range(NP):
+                if m.ancestor[b, kk] > dtype(0.0):
+                    ak = joint_a[w, kk]
+                    if m.jkind[kk] == 0:
+                        Jv = Jv + wp.outer(wp.cross(ak, c - joint_o[w, kk]), unit_p(kk))
+                        Jw = Jw + wp.outer(ak, unit_p(kk))
+                    else:
+                        Jv = Jv + wp.outer(ak, unit_p(kk))
+            # the body's velocity: base motion plus its joints'
+            vc = v0 + wp.cross(w0, c - x0) + Jv * qdj
+            # applied wrench: external (the hand, the planner) and the table
+            f_app = vec3(ext[w, 6 * b + 0], ext[w, 6 * b + 1], ext[w, 6 * b + 2])
+            t_app = vec3(ext[w, 6 * b + 3], ext[w, 6 * b + 4], ext[w, 6 * b + 5])
+            # the body's spatial inertia at its com, plus the table friction's implicit viscous part
+            # (dt cf P_t per contact, P_t the projection on the table's plane, moved to the com)
+            mb = m.mass[b]
+            Iw = R * m.inertia[b] * wp.transpose(R)
+            Kvv = mb * wp.identity(n=3, dtype=dtype)
+            Kvw = mat33()
+            Kww = Iw
+            if wp.static(TABLE):
+                Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
+                           dtype(0.0), dtype(0.0), dtype(0.0))
+                for s in range(S):
+                    rad = m.sample_radius[b, s]
+                    if rad >= dtype(0.0):
+                        ps = x + R * m.sample_pos[b, s]
+                        pen = m.table_z + rad - ps[2]
+                        if pen > dtype(-12.0) / m.beta:
+                            r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
+                            vp = vc + wp.cross(om, r)
+                            fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vp[2], dtype(0.0))
+                            vt = vec3(vp[0], vp[1], dtype(0.0))
+                            cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+                            f = vec3(dtype(0.0), dtype(0.0), fn) - cf * vt
+                            f_app = f_app + f
+                            t_app = t_app + wp.cross(r, f)
+                            # the point's velocity is V - [r]x w: its friction damping g P_t seen at the com
+                            g = dt * cf
+                            Sr = wp.skew(r)
+                            Kvv = Kvv + g * Pt
+                            Kvw = Kvw - g * Pt * Sr
+                            Kww = Kww - g * Sr * Pt * Sr
+            Kwv = wp.transpose(Kvw)
+            # inertial minus applied wrench, and the body's share of the matrix, block by block
+            F = mb * (ac - m.gravity) - f_app
+            T = Iw * al + wp.cross(om, Iw * om) - t_app
+            r3 = r3 - (wp.transpose(Jv) * F + wp.transpose(Jw) * T)
+            KJ_v = Kvv * Jv + Kvw * Jw  # the body's [V; w] rows times its joint columns
+            KJ_w = Kwv * Jv + Kww * Jw
+            M33 = M33 + wp.transpose(Jv) * KJ_v + wp.transpose(Jw) * KJ_w
+            if wp.static(FREE):
+                JR = -wp.skew(c - x0)  # com velocity per unit base angular velocity
+                KR_v = Kvv * JR + Kvw
+                KR_w = Kwv * JR + Kww
+                M11 = M11 + Kvv
+                M12 = M12 + KR_v
+                M13 = M13 + KJ_v
+                M22 = M22 + wp.transpose(JR) * KR_v + KR_w
+                M23 = M23 + wp.transpose(JR) * KJ_v + KJ_w
+                r1 = r1 - F
+                r2 = r2 - (wp.cross(c - x0, F) + T)
+        # joints: springs, dampers, friction and range stops, linearised at the predicted position
+        for k in range(NP):
+            damp = params[w, 4 * k + 0]
+            fric = params[w, 4 * k + 1]
+            spring = params[w, 4 * k + 2]
+            rest = params[w, 4 * k + 3]
+            qp = qj[k] + dt * qdj[k]
+            lo = m.jlower[k] - qp
+            hi = qp - m.jupper[k]
+            force = -damp * qdj[k] - fric * wp.tanh(qdj[k] / dtype(JOINT_FRICTION_VELOCITY)) - spring * (qp - rest)
+            force = force + m.limit_ke[k] * (limit_ramp(lo) - limit_ramp(hi))
+            stiff = spring + m.limit_ke[k] * (limit_slope(lo) + limit_slope(hi))
+            r3 = r3 + force * unit_p(k)
+            e = unit_p(k)
+            M33 = M33 + (m.armature[k] + dt * damp + dt * dt * stiff) * wp.outer(e, e)
+        # block elimination: [T R P] with T = base translation, R = base rotation, P = joints
+        qdd_p = vecP()
+        if wp.static(FREE):
+            M11i = wp.inverse(M11)
+            S22 = M22 - wp.transpose(M12) * M11i * M12
+            S23 = M23 - wp.transpose(M12) * M11i * M13
+            S33 = M33 - wp.transpose(M13) * M11i * M13
+            s2 = r2 - wp.transpose(M12) * (M11i * r1)
+            s3 = r3 - wp.transpose(M13) * (M11i * r1)
+            S22i = wp.inverse(S22)
+            if wp.static(NP > 0):
+                T33 = S33 - wp.transpose(S23) * S22i * S23
+                t3 = s3 - wp.transpose(S23) * (S22i * s2)
+                qdd_p = solve_pp(T33, t3)
+            a_rot = S22i * (s2 - S23 * qdd_p)
+            a_lin = M11i * (r1 - M12 * a_rot - M13 * qdd_p)
+            v_new = v0 + dt * a_lin
+            w_new = w0 + dt * a_rot
+            x_new = x0 + dt * v_new
+            rq = quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3])
+            rq = wp.normalize(rq + quat(w_new[0], w_new[1], w_new[2], dtype(0.0)) * rq * (dtype(0.5) * dt))
+            for i in range(3):
+                q_out[w, i] = x_new[i]
+                qd_out[w, i] = v_new[i]
+                qd_out[w, 3 + i] = w_new[i]
+            q_out[w, 3] = rq[3]
+            q_out[w, 4] = rq[0]
+            q_out[w, 5] = rq[1]
+            q_out[w, 6] = rq[2]
+        else:
+            qdd_p = solve_pp(M33, r3)
+        for k in range(NP):
+            v_k = qdj[k] + dt * qdd_p[k]
+            qd_out[w, vo + k] = v_k
+            q_out[w, qo + k] = qj[k] + dt * v_k
+
+    ns = types.SimpleNamespace(Model=Model, substep=substep, vec3=vec3, mat33=mat33, dtype=dtype)
+    return ns

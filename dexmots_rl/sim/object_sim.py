@@ -1,0 +1,231 @@
+"""The articulated object on its own: many worlds of one object tree on a table, differentiable.
+
+:class:`ObjectSimulator` steps the object of a scene (sim/object_model.py) under gravity, its joints'
+springs, dampers, friction and stops, the table's contact and an applied wrench per body (the hand's
+contact, or a planner's wrench). A step is ``substeps`` launches of one fused kernel over all worlds;
+with gradients on, the launches are recorded on a ``wp.Tape`` with one set of arrays per substep (a
+taped launch must not overwrite what an earlier one read) and :class:`ObjectStep` replays them backwards.
+
+Example:
+    >>> from dexmots_rl.assets.objects import load_object
+    >>> from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
+    >>> tree, _ = load_object_tree(load_object("spray_bottle_a"))  # doctest: +SKIP
+    >>> sim = ObjectSimulator(tree, num_worlds=2)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+import warp as wp
+from tensordict import TensorDict
+
+from .mjcf_shapes import AssetError
+from .object_kernels import build_object_kernels
+from .object_model import MAX_SAMPLES, ObjectTree, object_tree
+
+__all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree", "object_scene_xml"]
+
+LIMIT_FREQUENCY = 300.0  # rad/s: a range stop is as stiff as an oscillator of this frequency on the joint's inertia
+
+
+@dataclasses.dataclass(frozen=True)
+class TableContact:
+    """Penalty contact of the object's surface samples with the table: normal force
+    ``stiffness * softplus(sharpness * penetration) / sharpness * max(1 - damping * v_normal, 0)`` per sample,
+    Coulomb friction ``friction * f_n`` smoothed below ``slip_velocity`` (its viscous part is integrated
+    implicitly, so a small slip velocity stays stable: the object holds on the table like static friction)."""
+
+    stiffness: float = 2.0e4  # N/m per sample
+    sharpness: float = 1.0e4  # 1/m
+    damping: float = 10.0  # s/m
+    friction: float = 0.8
+    slip_velocity: float = 0.002  # m/s
+
+
+def object_scene_xml(asset, mesh_dir: str | Path, timestep: float = 1.0 / 960.0, gravity: bool = True) -> str:
+    """MJCF of ``asset`` (an :class:`~dexmots_rl.assets.objects.ObjectAsset`) alone on a table at z = 0."""
+    assets, body = asset.mjcf(mesh_dir)
+    g = "0 0 -9.81" if gravity else "0 0 0"
+    return (f'<mujoco model="{asset.name}">\n  <compiler angle="radian"/>\n'
+            f'  <option timestep="{timestep!r}" gravity="{g}"/>\n  <asset>\n{assets}  </asset>\n'
+            f'  <worldbody>\n    <geom name="table" type="plane" size="1 1 0.01" rgba="0.8 0.75 0.65 1"/>\n'
+            f'{body}  </worldbody>\n</mujoco>\n')
+
+
+def load_object_tree(asset, timestep: float = 1.0 / 960.0, gravity: bool = True) -> tuple[ObjectTree, object]:
+    """Compile ``asset`` on a table with MuJoCo; returns ``(ObjectTree, MjModel)``."""
+    import mujoco
+
+    with tempfile.TemporaryDirectory() as tmp:
+        xml = object_scene_xml(asset, tmp, timestep, gravity)
+        try:
+            m = mujoco.MjModel.from_xml_string(xml)
+        except Exception as exc:
+            raise AssetError(f"object {asset.name!r} does not compile: {exc}") from exc
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    return object_tree(m, d), m
+
+
+def _wp_dtype(dtype):
+    return {torch.float32: wp.float32, torch.float64: wp.float64}[dtype]
+
+
+class ObjectSimulator:
+    """Worlds of one object tree (see the module docstring). State: ``q`` [N, nq], ``qd`` [N, nv]
+    (:class:`~dexmots_rl.sim.object_model.ObjectTree` documents the layout); parameters: the named
+    per-joint values of :attr:`param_names`, each [N, 1]."""
+
+    def __init__(self, tree: ObjectTree, num_worlds: int, device: str = "cpu", dtype: torch.dtype = torch.float32,
+                 substeps: int = 16, sub_dt: float = 1.0 / 960.0, table: TableContact | None = None,
+                 gravity=(0.0, 0.0, -9.81)):
+        if num_worlds <= 0:
+            raise ValueError(f"num_worlds must be positive, got {num_worlds}")
+        self.tree, self.num_worlds, self.substeps, self.sub_dt = tree, num_worlds, substeps, sub_dt
+        self.dt = sub_dt * substeps
+        self.dtype = dtype
+        self.torch_device = torch.device(device)
+        self.device = wp.device_from_torch(self.torch_device)
+        self.table = table or TableContact()
+        self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free, MAX_SAMPLES,
+                                            tree.table_height is not None)
+        self.model = self._make_model(np.asarray(gravity, dtype=np.float64))
+
+    @property
+    def nq(self) -> int:
+        return self.tree.nq
+
+    @property
+    def nv(self) -> int:
+        return self.tree.nv
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return self.tree.param_names
+
+    def _make_model(self, gravity):
+        t, k = self.tree, self.kernels
+        wdt = _wp_dtype(self.dtype)
+
+        def arr(x, dtype, shape=None):
+            x = np.asarray(x, dtype=np.float64)
+            return wp.array(x if shape is None else x.reshape(shape), dtype=dtype, device=self.device)
+
+        m = k.Model()
+        m.parent = wp.array(t.parent.astype(np.int32), dtype=wp.int32, device=self.device)
+        m.off_pos, m.off_rot = arr(t.offset_pos, k.vec3), arr(t.offset_rot, k.mat33)
+        pad = (lambda a, shape: a if t.num_parts else np.zeros(shape))
+        m.jkind = wp.array(pad(t.joint_kind, (1,)).astype(np.int32), dtype=wp.int32, device=self.device)
+        m.jaxis, m.janchor = arr(pad(t.joint_axis, (1, 3)), k.vec3), arr(pad(t.joint_anchor, (1, 3)), k.vec3)
+        rng = pad(t.joint_range, (1, 2))
+        m.jlower, m.jupper = arr(rng[:, 0], wdt), arr(rng[:, 1], wdt)
+        # each stop as stiff as a LIMIT_FREQUENCY oscillator on the joint's own inertia (at the initial pose)
+        m.limit_ke = arr(pad(t.joint_inertia, (1,)) * LIMIT_FREQUENCY**2, wdt)
+        m.armature = arr(pad(t.armature, (1,)), wdt)
+        m.ancestor = arr(t.ancestor if t.num_parts else np.zeros((t.num_bodies, 1)), wdt)
+        m.mass, m.com, m.inertia = arr(t.mass, wdt), arr(t.com, k.vec3), arr(t.inertia, k.mat33)
+        m.sample_pos, m.sample_radius = arr(t.sample_pos, k.vec3), arr(t.sample_radius, wdt)
+        m.gravity = k.vec3(*gravity)
+        m.table_z = wdt(t.table_height or 0.0)
+        c = self.table
+        m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
+                                                               c.slip_velocity))
+        return m
+
+    # ---------------------------------------------------------------------------------------- state
+    def _zeros(self, *shape):
+        return torch.zeros(*shape, dtype=self.dtype, device=self.torch_device)
+
+    def initial_state(self) -> tuple[torch.Tensor, torch.Tensor]:
+        q = torch.as_tensor(self.tree.q0, dtype=self.dtype, device=self.torch_device).expand(self.num_worlds, -1)
+        return q.clone(), self._zeros(self.num_worlds, self.nv)
+
+    def default_params(self) -> TensorDict:
+        values = {n: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
+                  for n, v in self.tree.default_param_values().items()}
+        return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
+
+    def pack_params(self, params) -> torch.Tensor:
+        names = self.param_names
+        if not names:
+            return self._zeros(self.num_worlds, 4)
+        missing = [n for n in names if n not in params.keys()]
+        if missing:
+            raise ValueError(f"params lacks {', '.join(missing)}; this object's parameters are {', '.join(names)}")
+        return torch.cat([params[n].reshape(-1, 1) for n in names], -1)
+
+    def step(self, q, qd, params, body_wrench=None):
+        """One env step (``substeps`` substeps). ``body_wrench`` [N, B, 6]: force (N) and torque about each
+        body's com (N m), world frame, held over the step. Returns ``(q, qd)``; differentiable."""
+        if q.shape != (self.num_worlds, self.nq) or qd.shape != (self.num_worlds, self.nv):
+            raise ValueError(f"q must be [{self.num_worlds}, {self.nq}] and qd [{self.num_worlds}, {self.nv}], "
+                             f"got {tuple(q.shape)} and {tuple(qd.shape)}")
+        if body_wrench is None:
+            body_wrench = self._zeros(self.num_worlds, self.tree.num_bodies, 6)
+        ext = body_wrench.reshape(self.num_worlds, -1)
+        return ObjectStep.apply(self, q, qd, self.pack_params(params), ext)
+
+    # ------------------------------------------------------------------------------------- launches
+    def _run(self, q, qd, params, ext, grad: bool):
+        """Launch the substeps; returns the arrays (inputs first) so a tape can replay them."""
+        n, k = self.num_worlds, self.kernels
+        wq = wp.from_torch(q.contiguous(), requires_grad=grad)
+        wqd = wp.from_torch(qd.contiguous(), requires_grad=grad)
+        wpar = wp.from_torch(params.contiguous(), requires_grad=grad)
+        wext = wp.from_torch(ext.contiguous(), requires_grad=grad)
+        nb, nparts = self.tree.num_bodies, max(self.tree.num_parts, 1)
+        wdt = _wp_dtype(self.dtype)
+        states = [(wq, wqd)]
+        for _ in range(self.substeps):
+            def scratch(dtype, count):
+                return wp.zeros((n, count), dtype=dtype, device=self.device, requires_grad=grad)
+
+            q_out = wp.zeros((n, self.nq), dtype=wdt, device=self.device, requires_grad=grad)
+            qd_out = wp.zeros((n, self.nv), dtype=wdt, device=self.device, requires_grad=grad)
+            wp.launch(k.substep, dim=n, device=self.device,
+                      inputs=[self.model, states[-1][0], states[-1][1], wpar, wext, wdt(self.sub_dt),
+                              scratch(k.vec3, nb), scratch(k.mat33, nb), scratch(k.vec3, nb), scratch(k.vec3, nb),
+                              scratch(k.vec3, nb), scratch(k.vec3, nb), scratch(k.vec3, nparts),
+                              scratch(k.vec3, nparts)],
+                      outputs=[q_out, qd_out])
+            states.append((q_out, qd_out))
+        return wq, wqd, wpar, wext, states[-1]
+
+
+class ObjectStep(torch.autograd.Function):
+    """One env step of an :class:`ObjectSimulator`; inputs ``sim, q, qd, params, ext``, outputs ``(q, qd)``."""
+
+    @staticmethod
+    def forward(ctx, sim: ObjectSimulator, q, qd, params, ext):
+        inputs = [t.detach().to(sim.dtype).clone() for t in (q, qd, params, ext)]
+        grad = any(ctx.needs_input_grad[1:])
+        ctx.sim, ctx.tape = sim, None
+        if grad:
+            tape = wp.Tape()
+            with tape:
+                arrays = sim._run(*inputs, grad=True)
+            ctx.tape, ctx.arrays = tape, arrays
+        else:
+            arrays = sim._run(*inputs, grad=False)
+        q_out, qd_out = arrays[-1]
+        return wp.to_torch(q_out).clone(), wp.to_torch(qd_out).clone()
+
+    @staticmethod
+    def backward(ctx, grad_q, grad_qd):
+        if ctx.tape is None:
+            raise RuntimeError("ObjectStep supports one backward pass per forward")
+        wq, wqd, wpar, wext, (q_out, qd_out) = ctx.arrays
+        for arr, g in ((q_out, grad_q), (qd_out, grad_qd)):
+            if g is not None:
+                wp.to_torch(arr.grad).copy_(g.to(wp.to_torch(arr.grad).dtype))
+        ctx.tape.backward()
+        grads = [wp.to_torch(a.grad).clone() for a in (wq, wqd, wpar, wext)]
+        ctx.tape.zero()
+        ctx.tape, ctx.arrays = None, None
+        return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])
+
