@@ -4,7 +4,7 @@ loop.
 
 Layers, bottom to top (a module may import its own layer and the ones below)::
 
-    dexmots_rl.atomic / integrity / quaternions   helpers
+    dexmots_rl.<module>.py                         helpers (atomic, integrity, quaternions...)
     dexmots_rl.assets                              hand and object descriptions
     dexmots_rl.sim                                 the simulator (the only user of warp)
     dexmots_rl.trajectories                        object-centric plans (a scene in, never a task name)
@@ -28,8 +28,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "dexmots_rl"
 
-LAYERS = {
-    "atomic": 0, "integrity": 0, "quaternions": 0,
+HELPERS = 0  # a module directly in dexmots_rl/ (not a subpackage)
+LAYERS = {  # the subpackages
     "assets": 1,
     "sim": 2,
     "trajectories": 3,
@@ -90,8 +90,10 @@ def _layer(module: str) -> int | None:
     parts = module.split(".")
     if len(parts) == 1:
         return None  # the facade
+    if (PACKAGE / f"{parts[1]}.py").is_file():
+        return HELPERS
     if parts[1] not in LAYERS:
-        raise AssertionError(f"{module}: dexmots_rl.{parts[1]} has no layer in this test; give it one")
+        raise AssertionError(f"{module}: the subpackage dexmots_rl.{parts[1]} has no layer in this test; give it one")
     return LAYERS[parts[1]]
 
 
