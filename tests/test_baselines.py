@@ -1,18 +1,21 @@
-"""PPO / SAC baselines (``dexmots-train algo=ppo|sac``): run directory, dexmots-eval reload, torchrl's losses,
+"""PPO / SAC baselines (``dexmots-train algo=ppo|sac``): run directory, resume, dexmots-eval reload, torchrl's losses,
 the replay buffer's keys, the exported policy's normaliser."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from dexmots_rl.algorithms import ppo, sac
+from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
 from dexmots_rl.algorithms.common import deployable_policy, make_train_env, sync_obs_norm, tanh_gaussian_actor
-from dexmots_rl.algorithms.evaluation import policy_from_checkpoint
+from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from dexmots_rl.envs import make_env
@@ -94,6 +97,19 @@ def test_deployable_policy_normalises_the_plain_env_like_the_training_env():
     torch.testing.assert_close(normalised, td["observation"], rtol=1e-4, atol=1e-4)
 
 
-def test_baselines_refuse_resume(tmp_path):
+def test_sac_refuses_resume(tmp_path):  # its replay buffer is not in the checkpoint
     with pytest.raises(ValueError, match="resume"):
-        train(_cfg("ppo", tmp_path / "r", f"resume={tmp_path}"))
+        train(_cfg("sac", tmp_path / "r", f"resume={tmp_path}"))
+
+
+def test_ppo_stops_after_and_resumes_in_its_own_directory(tmp_path):
+    run = tmp_path / "run"
+    assert train(_cfg("ppo", run, "stop_after=1")) == {}  # two iterations in the schedule: stopped after one
+    assert load_checkpoint(run / "checkpoints" / "last.pt")["iteration"] == 1 and not (run / "metrics.json").exists()
+    result = train(_cfg("ppo", tmp_path / "elsewhere", f"resume={run}"))
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["iteration"] for r in rows] == [1, 2] and rows[1]["env_steps"] == 2 * rows[0]["env_steps"]
+    assert result["iterations"] == 2 and Path(result["run_dir"]) == run and (run / "metrics.json").is_file()
+    assert Path(OmegaConf.load(run / "config.yaml").run_dir) == run and not (tmp_path / "elsewhere").exists()
+    with pytest.raises(CheckpointError, match="algo.lr"):  # the checkpoint's algo section trains on
+        train(_cfg("ppo", tmp_path / "again", f"resume={run}", "algo.lr=0.1"), [f"resume={run}", "algo.lr=0.1"])

@@ -12,7 +12,8 @@ from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dexmots_rl.algorithms import pgdm
-from dexmots_rl.algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+from dexmots_rl.algorithms.evaluation import evaluate_policy
+from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from dexmots_rl.envs import make_env
@@ -164,3 +165,14 @@ def test_the_loss_is_torchrls_clip_ppo(tmp_path):
 def test_bad_pgdm_fields_name_the_field(tmp_path, override, field):
     with pytest.raises(ValueError, match=field):
         train(_cfg(tmp_path, override))
+
+
+def test_a_resumed_run_trains_its_checkpoints_pgdm(tmp_path):
+    run = tmp_path / "run"
+    assert train(_cfg(tmp_path, "stop_after=1", "algo.target_offsets=[1,2]")) == {}
+    cli = [f"resume={run}", "progress=false"]  # the defaults name another method (ahac) and other offsets
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        result = train(compose("config", overrides=cli), cli)
+    assert result["algo"] == "pgdm" and result["iterations"] == 2
+    _, data = policy_from_checkpoint(run)
+    assert list(data["config"]["algo"]["target_offsets"]) == [1, 2]

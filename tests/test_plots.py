@@ -9,7 +9,8 @@ import pytest
 from torchrl.record.loggers.csv import CSVLogger
 
 from dexmots_rl.apps.plot import main as plot_main
-from dexmots_rl.viz.plots import landscape_data, load_scalars, plot_curves, plot_landscape
+from dexmots_rl.apps.landscape import landscape_data
+from dexmots_rl.viz.plots import load_scalars, plot_curves, plot_landscape
 
 GRID = 5
 

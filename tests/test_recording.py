@@ -14,7 +14,7 @@ from dexmots_rl.envs import make_env
 from dexmots_rl.apps import record
 from dexmots_rl.envs.tasks.screw_claw import scripted_claw_action
 from dexmots_rl.viz import EpisodeRecorder, RecordingFormatError, read_recording
-from dexmots_rl.viz.geometry import scene_geometry
+from dexmots_rl.recording.geometry import scene_geometry
 
 STEPS, WORLDS, EPISODES = 5, 2, 2
 

@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 from dexmots_rl.apps import table
 from dexmots_rl.apps.table_spec import SweepSpecError
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from dexmots_rl.viz.table_writer import markdown_table, read_csv, time_to_success_table
+from dexmots_rl.apps.table_writer import markdown_table, read_csv, time_to_success_table
 
 KNOWN_CSV = """\
 task,method,action,seed,experiment,status,success,episodes,wall_clock_s,env_steps,time_to_90_s,env_steps_to_90,stopped_by,budget_wall_clock_s,budget_env_steps,run_dir

@@ -165,3 +165,28 @@ def test_recipe_names_a_task_and_a_method_and_sets_only_algo(path):
     assert plain.algo.iterations == 7  # the command line wins over the recipe
     default = OmegaConf.to_container(OmegaConf.create(dataclasses.asdict(task_config(task))))
     assert OmegaConf.to_container(cfg.task, resolve=True) == default
+
+
+def test_a_task_lacking_a_hook_is_refused_at_registration_naming_it():
+    from dexmots_rl.envs.base import DexEnv
+    from dexmots_rl.envs.registry import TASKS, register_task
+
+    class NoSuccessTest(DexEnv):
+        asset = "claw_screw.xml"
+
+        def sample_initial(self, n):
+            return {}
+
+        def reference(self, td, steps):
+            return td
+
+        def achieved_goal(self, obs):
+            return obs
+
+        def task_reward(self, obs, task, action):
+            return action, {}
+
+    before = dict(TASKS)
+    with pytest.raises(ValueError, match=r"NoSuccessTest does not implement the task hook\(s\) task_success"):
+        register_task("no_success_test", NoSuccessTest, type(task_config("screw_claw")))
+    assert TASKS == before

@@ -13,7 +13,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from dexmots_rl.algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+from dexmots_rl.algorithms.evaluation import evaluate_policy
+from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 
@@ -154,3 +155,16 @@ def test_training_evaluation_records_a_live_mcap(tmp_path):
     rec = read_recording(tmp_path / "run" / "eval.mcap")
     assert rec.frames.batch_size[1] == 3  # eval.episodes=3 worlds (fewer than record_worlds)
     assert int(rec.episode.max()) == 1  # two evaluations: after iteration 1 and the final one
+
+
+def test_every_algorithm_config_has_a_registered_method_and_back():
+    from dexmots_rl.algorithms.registry import ALGORITHMS, algorithm
+
+    configs = {p.stem for p in (Path(CONFIG_DIR) / "algo").glob("*.yaml")}
+    assert {a.config for a in ALGORITHMS.values()} == configs
+    for name in configs:
+        with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+            assert compose("config", overrides=[f"algo={name}"]).algo.name == name
+        assert algorithm(name).config == name
+    with pytest.raises(ValueError, match="known: ahac, mpc, pgdm, ppo, sac, shac"):
+        algorithm("dreamer")

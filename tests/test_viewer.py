@@ -104,8 +104,9 @@ def test_live_viewer_follows_a_growing_recording(episodes, tmp_path):
         for episode, rollout in enumerate(rollouts):
             rec.record_rollout(rollout)
             deadline = time.monotonic() + 10
-            while (viewer.rec is None or viewer.rec.num_frames < (episode + 1) * (STEPS + 1)) \
-                    and time.monotonic() < deadline:
+            # the viewer's thread swaps in the grown recording, then moves its frame: wait for both
+            while (viewer.rec is None or viewer.rec.num_frames < (episode + 1) * (STEPS + 1)
+                   or (episode > 0 and viewer.frame != viewer.rec.num_frames - 1)) and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert viewer.rec.num_frames == (episode + 1) * (STEPS + 1)
             assert viewer.frame == viewer.rec.num_frames - 1 or episode == 0  # parked on the end: follows

@@ -24,7 +24,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["RunBudget"]
+__all__ = ["NO_TRAINING", "RunBudget"]
+
+#: ``metrics.json``'s ``budget.stopped_by`` of a method that trains nothing (MPC): no budget applies
+NO_TRAINING = "no_training"
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Pieces the model-free baselines (PPO, SAC, PGDM) share: the training env, the policy, the run directory.
+"""Pieces the model-free baselines (PPO, SAC, PGDM) share: the training env, the policy, the loop's end.
 
 * :func:`make_train_env` — ``make_env(task, differentiable=False)`` (plus a method's own transforms, e.g.
   PGDM's observation and reward) and torchrl's ``VecNorm`` (new API), a clip on ``"observation"`` and an
@@ -8,38 +8,36 @@
 * :class:`ObsNorm` / :func:`deployable_policy` — the training env's normalisation frozen into a module in
   front of the actor (after, for PGDM, the module that rebuilds its observation), so the policy runs on the
   *plain* task env (``evaluate_policy``, ``dexmots-eval``).
-* :func:`policy_from_data` — that policy rebuilt from a checkpoint (``policy_from_checkpoint`` dispatches
-  here for ``algo`` in :data:`BASELINES`).
-* :func:`batch_metrics`, :class:`RunWriter` — one ``metrics.jsonl`` row per iteration, checkpoints and the final
-  ``metrics.json``, with the same names and layout as :mod:`.shac`'s.
+* :func:`policy_from_data` — that policy rebuilt from a checkpoint (each baseline's loader in
+  :mod:`.registry`).
+* :func:`batch_metrics`, :class:`CollectorLoop` — what every collector iteration ends with: the
+  ``metrics.jsonl`` row, the progress bar, the budget, checkpoints and evaluations through the run's
+  :class:`~.rundir.RunDirectory`, and the final evaluation.
 """
 
 from __future__ import annotations
 
-import json
 import logging
+import sys
+import time
 import warnings
-from pathlib import Path
 
 import torch
-from omegaconf import OmegaConf
 from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import ClipTransform, RewardSum, VecNorm
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from tqdm.auto import tqdm
 
-from ..atomic import atomic_write_json
 from ..envs import make_env
-from .checkpoint import save_checkpoint
-from .evaluation import evaluate_policy, periodic_episodes
-from .validation import validate_run_config
+from .budget import RunBudget
+from .rundir import RunDirectory
 
-__all__ = ["BASELINES", "ObsNorm", "RunWriter", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
+__all__ = ["CollectorLoop", "ObsNorm", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
            "policy_from_data", "sync_obs_norm", "tanh_gaussian_actor"]
 
 log = logging.getLogger(__name__)
 
-BASELINES = ("ppo", "sac", "pgdm")  # algos whose checkpoints hold a "policy" module built here
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
@@ -127,23 +125,15 @@ def sync_obs_norm(policy: TensorDictSequential, vecnorm) -> None:
     norm.scale.copy_(obs_norm.scale)
 
 
-def _policy_for(cfg, obs_dim: int, action_spec, observation=None) -> TensorDictSequential:
-    algo = cfg["algo"]
-    actor = tanh_gaussian_actor(obs_dim, action_spec, algo["hidden"], algo["activation"],
-                                state_scale=algo["name"] == "sac", init_log_std=algo.get("init_log_std", 0.0))
-    return deployable_policy(actor, obs_dim, algo.get("obs_clip", 10.0), observation=observation)
-
-
-def policy_from_data(data: dict, env) -> TensorDictSequential:
-    """The normaliser + actor of a PPO / SAC / PGDM checkpoint ``data``, on the plain task ``env``'s specs
-    (PGDM's observation module is rebuilt from the checkpoint's ``algo`` section and ``env``'s task)."""
-    observation, obs_dim = None, env.observation_spec["observation"].shape[-1]
-    if data["config"]["algo"]["name"] == "pgdm":
-        from .pgdm import policy_observation  # imported on use: pgdm imports this module
-
-        observation = policy_observation(data["config"]["algo"], env)
-        obs_dim = observation.width
-    policy = _policy_for(data["config"], obs_dim, env.action_spec_unbatched, observation)
+def policy_from_data(data: dict, env, state_scale: bool = False, observation=None) -> TensorDictSequential:
+    """The normaliser + actor of a baseline's checkpoint ``data`` on the plain task ``env``'s specs, as
+    :func:`tanh_gaussian_actor` built it (``state_scale``: SAC's) behind ``observation`` (a method's own
+    observation module, PGDM's; None: the task's ``"observation"``)."""
+    algo = data["config"]["algo"]
+    obs_dim = env.observation_spec["observation"].shape[-1] if observation is None else observation.width
+    actor = tanh_gaussian_actor(obs_dim, env.action_spec_unbatched, algo["hidden"], algo["activation"],
+                                state_scale=state_scale, init_log_std=algo.get("init_log_std", 0.0))
+    policy = deployable_policy(actor, obs_dim, algo.get("obs_clip", 10.0), observation=observation)
     policy.load_state_dict(data["modules"]["policy"])
     return policy
 
@@ -170,62 +160,83 @@ def batch_metrics(data, counters: dict) -> dict:
     return row
 
 
-class RunWriter:
-    """A run directory as :mod:`.shac` writes it: ``config.yaml``, ``metrics.jsonl`` (+ a torchrl logger),
-    ``checkpoints/last.pt`` and, after the final evaluation, ``metrics.json``."""
+class CollectorLoop:
+    """The end of every collector iteration of PPO, SAC and PGDM, and of their runs.
 
-    def __init__(self, cfg):
-        if cfg.resume:
-            raise ValueError(f"algo {cfg.algo.name!r} does not resume runs (resume={cfg.resume}); start a new run")
-        validate_run_config(cfg)
-        self.cfg, self.dir = cfg, Path(cfg.run_dir)
-        self.dir.mkdir(parents=True, exist_ok=True)
-        (self.dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        if cfg.logger not in ("csv", "tensorboard"):
-            raise ValueError(f"logger must be 'csv' or 'tensorboard', got {cfg.logger!r}")
-        from torchrl.record.loggers import get_logger
+    The trainer counts ``counters["iteration"]`` and ``counters["env_steps"]`` itself; :meth:`end_iteration`
+    then stops the clock for the row, logs the row (:func:`batch_metrics` + the method's statistics),
+    checks the budget, writes a checkpoint every ``checkpoint_every`` iterations, at the end and at
+    ``stop_after``, runs the periodic evaluations (their time is not training time), and says whether to
+    stop. :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
+    On resume (:attr:`.RunDirectory.start`), the counters continue the checkpoint's and :meth:`restore`
+    loads its modules and optimizers.
+    """
 
-        self.logger = get_logger(cfg.logger, logger_name=str(self.dir), experiment_name="logs")
+    def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int):
+        self.run, self.cfg, self.policy, self.vecnorm, self.iterations = run, run.cfg, policy, vecnorm, iterations
+        self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
+        if run.start is not None:
+            self.counters.update(run.start["counters"])
+        self.stop_at = min(iterations, self.cfg.stop_after) if self.cfg.stop_after else iterations
+        self.budget, self.stopped_by, self.ended = RunBudget.from_config(self.cfg), None, False
+        self.bar = tqdm(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
+                        desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
+        self._t_start = time.perf_counter() - self.counters["wall_clock_s"]
 
-    def log(self, row: dict) -> None:
-        with open(self.dir / "metrics.jsonl", "a") as f:
-            f.write(json.dumps(row) + "\n")
-        for key, value in row.items():
-            if key != "iteration" and isinstance(value, (int, float)) and value == value:  # skip NaN
-                self.logger.log_scalar(key, value, step=row["iteration"])
+    def restore(self, modules: dict, optimizers: dict) -> None:
+        """On resume: the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
+        under) and of torch's random stream; nothing on a fresh run. The episodes start afresh (a
+        collector's env state is not saved)."""
+        start = self.run.start
+        if start is None:
+            return
+        for name, module in modules.items():
+            module.load_state_dict(start["modules"][name])
+        for name, optimizer in optimizers.items():
+            optimizer.load_state_dict(start["optimizers"][name])
+        torch.set_rng_state(start["rng"]["torch"])
 
-    def checkpoint(self, counters: dict, modules: dict, optimizers: dict) -> None:
-        """``modules`` must hold ``"policy"`` (:func:`deployable_policy`): what ``dexmots-eval`` rebuilds."""
-        save_checkpoint(self.dir / "checkpoints" / "last.pt", {
-            "task": self.cfg.task.name,
-            "algo": self.cfg.algo.name,
-            "config": OmegaConf.to_container(self.cfg, resolve=True),
-            "iteration": counters["iteration"],
-            "counters": dict(counters),
-            "modules": {name: m.state_dict() for name, m in modules.items()},
-            "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
-        })
+    def frames_left(self, frames_per_batch: int) -> int:
+        """The frames the collector still has to collect: up to ``stop_after`` or the schedule's end."""
+        return max(0, self.stop_at - self.counters["iteration"]) * frames_per_batch
 
-    def evaluate(self, policy, counters: dict, final: bool = True, budget: dict | None = None) -> dict:
-        """Deterministic evaluation on the plain task env (``eval.curve_episodes`` episodes during training);
-        the final one also writes ``metrics.json``, with ``budget`` (:meth:`.budget.RunBudget.record`)."""
-        cfg = self.cfg
-        rec = {"record": self.dir / "eval.mcap", "live": True} if cfg.eval.record else {}
-        episodes = cfg.eval.episodes if final else periodic_episodes(cfg.eval)
-        ev = evaluate_policy(policy, cfg.task, episodes, cfg.eval.seed, cfg.device, **rec)
-        if not final:
-            self.log({"iteration": counters["iteration"],
-                      **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
-            return ev
-        return self.write_result(ev, counters, budget=budget)
+    def progress(self) -> float:
+        """How far the run is to its end in [0, 1] (its schedule or its budget): linear decays follow it."""
+        return self.budget.progress(self.counters, self.counters["iteration"] / self.iterations)
 
-    def write_result(self, ev: dict, counters: dict, budget: dict | None = None, **extra) -> dict:
-        """``metrics.json``: the evaluation ``ev``, the run's counters and ``extra`` entries; returns it."""
-        cfg = self.cfg
-        result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
-                  "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "budget": budget or {}, **extra, "run_dir": str(self.dir)}
-        atomic_write_json(self.dir / "metrics.json", result)  # a sweep's restart trusts a complete file
-        log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,
-                 ev["success_rate"], counters["env_steps"], counters["wall_clock_s"])
-        return result
+    def end_iteration(self, data, stats: dict, modules: dict, optimizers: dict) -> bool:
+        """Log the iteration of the collected batch ``data`` with the method's ``stats``, checkpoint
+        ``modules`` (``"policy"``, the deployable policy, is synced with the normaliser first) and
+        ``optimizers`` when due, evaluate when due; True when the run is over."""
+        counters = self.counters
+        counters["wall_clock_s"] = time.perf_counter() - self._t_start
+        row = {**batch_metrics(data, counters), **stats}
+        self.run.log(row)
+        self.bar.update(1)
+        self.bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
+                             reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
+        self.stopped_by = self.budget.reached(counters)
+        self.ended = counters["iteration"] >= self.iterations or self.stopped_by is not None
+        stop = self.ended or counters["iteration"] >= self.stop_at
+        evaluate_now = self.cfg.eval.every and counters["iteration"] % self.cfg.eval.every == 0 and not self.ended
+        if stop or counters["iteration"] % self.cfg.checkpoint_every == 0 or evaluate_now:
+            sync_obs_norm(self.policy, self.vecnorm)
+            self.run.checkpoint(counters, modules, optimizers, rng={"torch": torch.get_rng_state()})
+            if evaluate_now:
+                t_eval = time.perf_counter()
+                self.run.evaluate(self.policy, counters, final=False)
+                self._t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
+        return stop
+
+    def finish(self, collector) -> dict:
+        """Close the bar and the collector (None: there was nothing left to collect); the final
+        evaluation's ``metrics.json`` (returned), or ``{}`` when ``stop_after`` stopped the run first
+        (``resume=<run_dir>`` continues it)."""
+        self.bar.close()
+        if collector is not None:
+            collector.shutdown()
+        self.ended = self.ended or self.counters["iteration"] >= self.iterations
+        if not self.ended:
+            return {}
+        sync_obs_norm(self.policy, self.vecnorm)
+        return self.run.evaluate(self.policy, self.counters, budget=self.budget.record(self.stopped_by))

@@ -22,14 +22,13 @@ Example:
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..envs import make_env
 
-__all__ = ["evaluate_policy", "periodic_episodes", "policy_from_checkpoint"]
+__all__ = ["evaluate_policy", "periodic_episodes"]
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +39,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     """Success rate, mean final error and mean time to success over ``episodes`` deterministic episodes.
 
     ``record``: an MCAP path; the first ``record_worlds`` episodes are written there (``live``: the file is
-    rewritten after every evaluation, for ``dexmots-view --live``; see :mod:`dexmots_rl.viz`)."""
+    rewritten after every evaluation, for ``dexmots-view --live``; see :mod:`dexmots_rl.recording`)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = make_env(task_cfg, num_envs=episodes, differentiable=False, seed=seed, device=device)
@@ -98,7 +97,7 @@ _LIVE_RECORDERS: dict = {}
 
 
 def _record(task_cfg, rollout, path, worlds: int, live: bool) -> None:
-    from ..viz import EpisodeRecorder
+    from ..recording import EpisodeRecorder
 
     worlds = min(worlds, rollout.shape[0])
     # the recorder needs an env of exactly the recorded worlds (scene geometry, references)
@@ -110,24 +109,3 @@ def _record(task_cfg, rollout, path, worlds: int, live: bool) -> None:
         return
     with EpisodeRecorder(path, small) as rec:
         rec.record_rollout(rollout[:worlds])
-
-
-def policy_from_checkpoint(path, device="cpu"):
-    """``(actor, checkpoint dict)`` rebuilt from a checkpoint file or a run directory."""
-    from .checkpoint import latest_checkpoint, load_checkpoint
-    from .networks import make_networks
-
-    path = Path(path)
-    data = load_checkpoint(latest_checkpoint(path) if path.is_dir() else path)
-    cfg = data["config"]
-    env = make_env(cfg["task"], num_envs=1, differentiable=False, seed=0, device=device)
-    from .common import BASELINES, policy_from_data
-
-    if data.get("algo") in BASELINES:  # PPO / SAC: their own networks behind the training env's normaliser
-        return policy_from_data(data, env), data
-    actor, critic, norm = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
-                                        tuple(cfg["algo"]["hidden"]), cfg["algo"]["init_log_std"],
-                                        layer_norm=cfg["algo"].get("layer_norm", False))
-    actor.load_state_dict(data["modules"]["actor"])
-    norm.load_state_dict(data["modules"]["norm"])
-    return actor, data

@@ -45,9 +45,9 @@ from tqdm.auto import tqdm
 from ..envs import make_env
 from ..envs.config import check_number
 from ..envs.mirror import SignedPermutation, action_reflection, reflect_mirrored
-from ..viz.table_writer import NO_TRAINING
-from .common import RunWriter
+from .budget import NO_TRAINING
 from .evaluation import evaluate_policy
+from .rundir import RunDirectory
 
 __all__ = ["INTERPOLATIONS", "PLANNER_FIELDS", "PredictiveSampler", "STATE", "check_config", "spline_weights",
            "train"]
@@ -308,14 +308,19 @@ PLANNER_FIELDS = ("candidates", "horizon", "knots", "noise", "interpolation", "r
                   "refine_optimizer", "initial_plan")
 
 
-def train(cfg) -> dict:
+def train(cfg, overrides: list[str] | None = None) -> dict:
     """Evaluate the planner on ``cfg.eval.episodes`` episodes (no learning); returns the metrics dict, also
-    written to ``metrics.json`` (and as the one row of ``metrics.jsonl``)."""
-    a = cfg.algo
-    check_config(a)
+    written to ``metrics.json`` (and as the one row of ``metrics.jsonl``). Nothing to resume: ``resume=``
+    is refused (``overrides`` are not used)."""
+    check_config(cfg.algo)
     if cfg.eval.episodes < 1:
         raise ValueError(f"eval.episodes must be >= 1, got {cfg.eval.episodes}")
-    writer = RunWriter(cfg)
+    with RunDirectory(cfg, overrides, resumes=False) as run:
+        return _plan(run)
+
+
+def _plan(run: RunDirectory) -> dict:
+    cfg, a = run.cfg, run.cfg.algo
     torch.manual_seed(cfg.seed)
     episodes = cfg.eval.episodes
     planner = PredictiveSampler.for_task(cfg.task, episodes, **{name: a[name] for name in PLANNER_FIELDS},
@@ -326,14 +331,13 @@ def train(cfg) -> dict:
              "per control step and world", cfg.task.name, episodes, a.candidates, a.horizon, a.refine_steps,
              budget["sim_steps_per_control_step"], budget["grad_steps_per_control_step"])
     planner.progress = tqdm(total=steps, desc=f"mpc {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
-    rec = {"record": writer.dir / "eval.mcap"} if cfg.eval.record else {}
     start = time.perf_counter()
-    ev = evaluate_policy(planner, cfg.task, episodes, cfg.eval.seed, cfg.device, **rec)
+    ev = evaluate_policy(planner, cfg.task, episodes, cfg.eval.seed, cfg.device, **run.record_options(live=False))
     wall = time.perf_counter() - start
     planner.progress.close()
     counters = {"iteration": 0, "env_steps": episodes * steps, "wall_clock_s": 0.0}  # no training: 0 s of it
     row = {**ev, **planner.budget(), "iteration": 0, "env_steps": episodes * steps, "wall_clock_s": round(wall, 2)}
-    writer.log({k: v for k, v in row.items() if not isinstance(v, list)})
+    run.log({k: v for k, v in row.items() if not isinstance(v, list)})
     # a training budget does not apply: nothing trains (dexmots-table reports "no training", not "0 s to 90 %")
     no_training = {"wall_clock_s": None, "env_steps": None, "stopped_by": NO_TRAINING}
-    return writer.write_result(ev, counters, budget=no_training, **planner.budget(), wall_clock_s=round(wall, 2))
+    return run.write_result(ev, counters, budget=no_training, **planner.budget(), wall_clock_s=round(wall, 2))

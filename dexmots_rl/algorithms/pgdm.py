@@ -49,8 +49,9 @@ from ..envs.mirror import SignedPermutation, reflect_mirrored, sized
 from ..envs.transforms import StateTransform
 from ..quaternions import quat_angle
 from . import ppo
+from .common import policy_from_data
 
-__all__ = ["PGDMFeatures", "PGDMObservation", "PGDMPolicyObservation", "build", "pgdm_variant",
+__all__ = ["PGDMFeatures", "PGDMObservation", "PGDMPolicyObservation", "build", "load_policy", "pgdm_variant",
            "policy_observation", "start_action", "tracking_reward", "train", "warm_start_actor"]
 
 log = logging.getLogger(__name__)
@@ -272,6 +273,12 @@ def build(cfg: DictConfig):
     return ppo.build(cfg, pgdm_variant(cfg.algo))
 
 
-def train(cfg: DictConfig) -> dict:
+def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     """Train a PGDM run (:func:`.ppo.train`); returns the final metrics dict (``metrics.json``)."""
-    return ppo.train(cfg, pgdm_variant(cfg.algo))
+    return ppo.train(cfg, overrides, pgdm_variant)
+
+
+def load_policy(data: dict, env):
+    """The deployable policy of a PGDM checkpoint ``data`` on the plain task ``env``: PGDM's observation
+    (rebuilt from the checkpoint's ``algo`` section and ``env``'s task), the normaliser and the actor."""
+    return policy_from_data(data, env, observation=policy_observation(data["config"]["algo"], env))

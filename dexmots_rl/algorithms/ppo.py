@@ -8,20 +8,20 @@ One iteration (CleanRL / torchrl ``sota-implementations/ppo`` style): the ``Coll
 worlds of ``make_env(task, differentiable=False)`` (observation normalised by ``VecNorm``) for
 ``frames_per_batch`` frames under the sampled policy -> for each of ``epochs`` epochs: GAE advantages with
 the current critic, then Adam steps on shuffled minibatches of the clipped PPO objective + critic loss
-(gradient norm clipped) -> learning rate annealed linearly. The run directory is :mod:`.shac`'s:
-``metrics.jsonl`` per iteration, ``checkpoints/last.pt`` (``dexmots-eval`` reloads it), ``metrics.json``
-with the final deterministic evaluation.
+(gradient norm clipped) -> learning rate annealed linearly -> the loop's end every baseline shares
+(:class:`~.common.CollectorLoop`: ``metrics.jsonl`` row, checkpoint ``checkpoints/last.pt`` that
+``dexmots-eval`` reloads, periodic evaluations, budget; at the end ``metrics.json`` with the final
+deterministic evaluation), in the run directory every method writes (:class:`~.rundir.RunDirectory`).
 
-A method that is PPO with another observation, reward, start or initialisation (PGDM, :mod:`.pgdm`) passes
-a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
+``resume=<run_dir>`` continues a run from its checkpoint (networks, normaliser, optimiser, counters; the
+episodes start afresh). A method that is PPO with another observation, reward, start or initialisation
+(PGDM, :mod:`.pgdm`) passes a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import sys
-import time
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -32,13 +32,11 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm.auto import tqdm
 
-from .budget import RunBudget
-from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
-    tanh_gaussian_actor
+from .common import CollectorLoop, deployable_policy, make_train_env, mlp, policy_from_data, tanh_gaussian_actor
+from .rundir import RunDirectory
 
-__all__ = ["PLAIN_PPO", "PPOVariant", "build", "train"]
+__all__ = ["PLAIN_PPO", "PPOVariant", "build", "load_policy", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -84,24 +82,33 @@ def build(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO):
     return env, vecnorm, actor, critic, gae, loss, optimizer
 
 
-def train(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO) -> dict:
-    """Train a PPO run; returns the final metrics dict (also written to ``metrics.json``)."""
-    a = cfg.algo
-    writer = RunWriter(cfg)
+def train(cfg: DictConfig, overrides: list[str] | None = None,
+          make_variant: Callable[..., PPOVariant] = lambda algo: PLAIN_PPO) -> dict:
+    """Train (or resume) a PPO run; returns the final metrics dict (also written to ``metrics.json``), or
+    ``{}`` when stopped early by ``stop_after``. ``overrides``: the command line's, which a resume compares
+    with its checkpoint; ``make_variant``: ``algo`` section -> the :class:`PPOVariant` (of the config that
+    trains: on resume, the checkpoint's)."""
+    with RunDirectory(cfg, overrides, resumes=True) as run:
+        return _train(run, make_variant(run.cfg.algo))
+
+
+def _train(run: RunDirectory, variant: PPOVariant) -> dict:
+    cfg, a = run.cfg, run.cfg.algo
     env, vecnorm, actor, critic, gae, loss, optimizer = build(cfg, variant)
     front = None if variant.policy_observation is None else variant.policy_observation(env)
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip, observation=front)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
+    loop = CollectorLoop(run, policy, vecnorm, iterations)
+    modules, optimizers = {"policy": policy, "critic": critic, "vecnorm": vecnorm}, {"optimizer": optimizer}
+    loop.restore(modules, optimizers)  # a resumed run continues from its checkpoint
+    counters = loop.counters
     # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=iterations * frames_per_batch,
-                          device=cfg.device, exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False)
-    counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
-    bar = tqdm(total=iterations, desc=f"{a.name} {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
-    budget, stopped_by = RunBudget.from_config(cfg), None
-    t_start = time.perf_counter()
-    for data in collector:
+    frames = loop.frames_left(frames_per_batch)
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
+                          exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False) if frames else None
+    for data in collector or ():
         # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
         updates = 0
@@ -131,33 +138,19 @@ def train(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO) -> dict:
         counters["iteration"] += 1
         if a.anneal_lr:
             for group in optimizer.param_groups:
-                group["lr"] = a.lr * (1.0 - budget.progress(counters, counters["iteration"] / iterations))
+                group["lr"] = a.lr * (1.0 - loop.progress())
         collector.update_policy_weights_()  # single process: the collector already holds this actor
-
         counters["env_steps"] += data.numel()
-        counters["wall_clock_s"] = time.perf_counter() - t_start
-        row = {**batch_metrics(data, counters), **{k: v / max(updates, 1) for k, v in stats.items()},
-               "lr": optimizer.param_groups[0]["lr"], "policy_std": float(data.get("scale").mean())}
+
+        stats = {**{k: v / max(updates, 1) for k, v in stats.items()}, "lr": optimizer.param_groups[0]["lr"],
+                 "policy_std": float(data.get("scale").mean())}
         if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
-            row[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
-        writer.log(row)
-        bar.update(1)
-        bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
-                        reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
-        stopped_by = budget.reached(counters)
-        last = counters["iteration"] == iterations or stopped_by is not None
-        evaluate_now = cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last
-        if last or counters["iteration"] % cfg.checkpoint_every == 0 or evaluate_now:
-            sync_obs_norm(policy, vecnorm)
-            writer.checkpoint(counters, {"policy": policy, "critic": critic, "vecnorm": vecnorm},
-                              {"optimizer": optimizer})
-            if evaluate_now:
-                t_eval = time.perf_counter()
-                writer.evaluate(policy, counters, final=False)
-                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
-        if stopped_by is not None:
+            stats[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
+        if loop.end_iteration(data, stats, modules, optimizers):
             break
-    bar.close()
-    collector.shutdown()
-    sync_obs_norm(policy, vecnorm)
-    return writer.evaluate(policy, counters, budget=budget.record(stopped_by))
+    return loop.finish(collector)
+
+
+def load_policy(data: dict, env):
+    """The deployable policy (normaliser + actor) of a PPO checkpoint ``data`` on the plain task ``env``."""
+    return policy_from_data(data, env)

@@ -1,5 +1,11 @@
-"""A training run's directory: refuse to train over another run, lock it while a trainer uses it, and on
-resume cut the logs back to the checkpoint and take the checkpoint's own config.
+"""A training run's directory, written by every method through :class:`RunDirectory`: ``config.yaml`` (the
+resolved config), ``metrics.jsonl`` (one row per iteration) and a torchrl logger's ``logs/``,
+``checkpoints/last.pt`` (atomic and checksummed, :mod:`.checkpoint`), ``metrics.json`` (the final
+evaluation), a lock for as long as a trainer uses it, and resume.
+
+A fresh run refuses a directory holding another run (``overwrite=true`` replaces it); a resume continues
+the run in ``resume=<dir>`` with the checkpoint's own task, algo and seed, and its ``config.yaml`` names
+that directory.
 
 Logs after a crash: rows of iterations past the last checkpoint were never saved in the model, so on
 resume they are **truncated** (``metrics.jsonl`` and the CSV logger's ``*.csv``), and the resumed run
@@ -15,12 +21,15 @@ import os
 import shutil
 from pathlib import Path
 
-from ..atomic import atomic_write, clean_stale_temps
+from ..atomic import atomic_write, atomic_write_json, clean_stale_temps, dumps_json
 from ..envs.config import saved_config_defaults
 from ..envs.registry import list_tasks, task_entry
-from .checkpoint import CheckpointError
+from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
+from .evaluation import evaluate_policy, periodic_episodes
+from .validation import validate_run_config
 
-__all__ = ["RUN_FILES", "RunDirLock", "holds_run", "prepare_fresh_run_dir", "truncate_logs", "resume_config"]
+__all__ = ["RUN_FILES", "RunDirLock", "RunDirectory", "holds_run", "prepare_fresh_run_dir", "truncate_logs",
+           "resume_config"]
 
 log = logging.getLogger(__name__)
 
@@ -28,8 +37,8 @@ log = logging.getLogger(__name__)
 RUN_FILES = ("checkpoints", "metrics.jsonl", "metrics.json", "config.yaml", "logs", "eval.json", "eval.mcap")
 #: resume keeps the checkpoint's values of these; an override that differs is a conflict
 LOCKED = ("task", "algo", "seed")
-#: ... except these, which a resumed run may change (a longer schedule)
-RESUME_MAY_CHANGE = ("algo.iterations",)
+#: ... except these, which a resumed run may change (a longer schedule: SHAC's iterations, PPO's frames)
+RESUME_MAY_CHANGE = ("algo.iterations", "algo.total_frames")
 
 
 def holds_run(run_dir: Path) -> bool:
@@ -169,8 +178,145 @@ def resume_config(cfg, checkpoint: dict, source, overrides: list[str] | None):
         more = f" and {len(conflicts) - 3} more" if len(conflicts) > 3 else ""
         raise CheckpointError(f"resume={source}: {', '.join(conflicts[:3])}{more} conflict with the checkpoint; a resumed "
                               "run keeps its checkpoint's task, algo and seed (drop those overrides or start a new run)")
-    merged = OmegaConf.merge(cfg, {k: saved[k] for k in LOCKED if k in saved})
+    base = cfg
+    other = [k for k in ("task", "algo") if isinstance(saved.get(k), dict)
+             and _select(mine, f"{k}.name") != saved[k].get("name")]
+    if other:  # the command line's defaults name another task or method: the checkpoint's section replaces it
+        base = OmegaConf.create({k: v for k, v in mine.items() if k not in other})
+    merged = OmegaConf.merge(base, {k: saved[k] for k in LOCKED if k in saved})
     for key in RESUME_MAY_CHANGE:
-        if overrides is None or key in _override_keys(overrides):
+        if (overrides is None or key in _override_keys(overrides)) and OmegaConf.select(cfg, key) is not None:
             OmegaConf.update(merged, key, OmegaConf.select(cfg, key), merge=False)
+    # the run continues in the resumed directory: its config names it (not the command line's default)
+    OmegaConf.update(merged, "run_dir", str(source), merge=False)
     return merged
+
+
+class RunDirectory:
+    """The run directory of one training run, opened before any env is built (every method uses it).
+
+    Opening it validates ``cfg`` (:func:`.validation.validate_run_config`), on resume (``cfg.resume``) loads
+    the last checkpoint (:attr:`start`) and takes its config (:func:`resume_config`; :attr:`cfg` is what
+    trains), locks the directory (:class:`RunDirLock`), refuses or replaces a previous run
+    (:func:`prepare_fresh_run_dir`) or cuts a resumed run's logs back to its checkpoint
+    (:func:`truncate_logs`), and writes ``config.yaml``. ``main=False`` (the other ranks of a distributed
+    run): the same config and checkpoint, nothing locked or written. ``resumes=False``: the method cannot
+    continue a run, and ``resume=`` is refused. ``overrides``: the command line's, compared with the
+    checkpoint on resume. Close it (or use it as a context manager) to release the lock; a run that fails
+    before writing anything leaves no directory behind.
+    """
+
+    def __init__(self, cfg, overrides: list[str] | None = None, main: bool = True, resumes: bool = True):
+        self.start: dict | None = None
+        if cfg.resume:
+            if not resumes:
+                raise ValueError(f"algo {cfg.algo.name!r} does not resume runs (resume={cfg.resume}); start a new run")
+            self.start = load_checkpoint(latest_checkpoint(cfg.resume))
+            cfg = resume_config(cfg, self.start, cfg.resume, overrides)
+        validate_run_config(cfg)  # what is validated is what trains: on resume, the checkpoint's config
+        if self.start is not None:
+            for what, name in (("task", cfg.task.name), ("algo", cfg.algo.name)):
+                if self.start.get(what) != name:
+                    raise CheckpointError(f"{cfg.resume} was trained with {what} {self.start.get(what)!r}, "
+                                          f"not {name!r}")
+        self.cfg, self.dir, self.main = cfg, Path(cfg.run_dir), main
+        self.logger, self._lock = None, None
+        if not main:
+            return
+        created = not self.dir.exists()
+        self._lock = RunDirLock(self.dir)
+        try:
+            if self.start is None:
+                prepare_fresh_run_dir(self.dir, bool(cfg.get("overwrite", False)))
+            else:
+                truncate_logs(self.dir, int(self.start["iteration"]))
+            from omegaconf import OmegaConf
+            from torchrl.record.loggers import get_logger
+
+            (self.dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+            self.logger = get_logger(cfg.logger, logger_name=str(self.dir), experiment_name="logs")
+        except BaseException:
+            self.close(remove_if_empty=created)
+            raise
+        self._created = created
+
+    # ---------------------------------------------------------------------------------- writing
+    def log(self, row: dict) -> None:
+        """One ``metrics.jsonl`` row (strict JSON: NaN as null) and its finite numbers to the logger."""
+        if not self.main:
+            return
+        with open(self.dir / "metrics.jsonl", "a") as f:
+            f.write(dumps_json(row) + "\n")
+        for key, value in row.items():
+            if key != "iteration" and isinstance(value, (int, float)) and value == value:  # NaN: not a scalar
+                self.logger.log_scalar(key, value, step=row["iteration"])
+
+    def checkpoint(self, counters: dict, modules: dict, optimizers: dict, **extra) -> None:
+        """``checkpoints/last.pt``: the config, counters, ``{name: state_dict}`` of ``modules`` and
+        ``optimizers``, and ``extra`` entries (a method's env state, RNG states...). A baseline's
+        ``modules`` hold ``"policy"``: what its :func:`~.registry.policy_from_checkpoint` loader rebuilds."""
+        if not self.main:
+            return
+        from omegaconf import OmegaConf
+
+        save_checkpoint(self.dir / "checkpoints" / "last.pt", {
+            "task": self.cfg.task.name,
+            "algo": self.cfg.algo.name,
+            "config": OmegaConf.to_container(self.cfg, resolve=True),
+            "iteration": counters["iteration"],
+            "counters": dict(counters),
+            "modules": {name: m.state_dict() for name, m in modules.items()},
+            "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
+            **extra,
+        })
+
+    def record_options(self, live: bool = True) -> dict:
+        """``evaluate_policy``'s recording options: ``<run_dir>/eval.mcap`` when ``eval.record``
+        (``live``: rewritten after every evaluation, for ``dexmots-view --live``)."""
+        if not self.cfg.eval.record:
+            return {}
+        return {"record": self.dir / "eval.mcap", **({"live": True} if live else {})}
+
+    def evaluate(self, policy, counters: dict, final: bool = True, budget: dict | None = None, **extra) -> dict:
+        """Deterministic evaluation on the plain task env. During training (``final=False``):
+        ``eval.curve_episodes`` episodes, logged as ``eval_*`` entries of a ``metrics.jsonl`` row; the
+        final one (``eval.episodes``) writes ``metrics.json`` (:meth:`write_result`) and returns it."""
+        cfg = self.cfg
+        episodes = cfg.eval.episodes if final else periodic_episodes(cfg.eval)
+        ev = evaluate_policy(policy, cfg.task, episodes, cfg.eval.seed, cfg.device, **self.record_options())
+        if not final:
+            self.log({"iteration": counters["iteration"],
+                      **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
+            return ev
+        return self.write_result(ev, counters, budget=budget, **extra)
+
+    def write_result(self, ev: dict, counters: dict, budget: dict | None = None, **extra) -> dict:
+        """``metrics.json``: the evaluation ``ev``, the run's counters, its ``budget`` record
+        (:meth:`.budget.RunBudget.record`) and ``extra`` entries; returns it."""
+        cfg = self.cfg
+        result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
+                  "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
+                  "budget": budget or {}, **extra, "run_dir": str(self.dir)}
+        if self.main:
+            atomic_write_json(self.dir / "metrics.json", result)  # a sweep's restart trusts a complete file
+            log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,
+                     ev["success_rate"], counters["env_steps"], counters["wall_clock_s"])
+        return result
+
+    # ---------------------------------------------------------------------------------- closing
+    def close(self, remove_if_empty: bool = False) -> None:
+        """Release the lock; ``remove_if_empty``: also remove the directory if this run created it and
+        left nothing in it but the lock (a run that failed before its first write)."""
+        if self._lock is None:
+            return
+        self._lock.close()
+        self._lock = None
+        if remove_if_empty and {p.name for p in self.dir.iterdir()} <= {".lock", "config.yaml", "logs"}:
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+    def __enter__(self) -> "RunDirectory":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(remove_if_empty=exc_type is not None and getattr(self, "_created", False)
+                   and not holds_run(self.dir))

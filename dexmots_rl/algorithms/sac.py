@@ -10,16 +10,15 @@ frames (uniform random actions for the first ``init_random_frames``) -> the tran
 reward terms, goals...) -> ``frames_per_batch * utd_ratio`` gradient steps on sampled minibatches (actor,
 twin Q and temperature together) with a polyak update of the target Q after each. The normaliser is frozen
 once the random frames are in, so the stored observations and the ones the networks see later agree.
-Run directory as :mod:`.shac`'s (``metrics.jsonl``, ``checkpoints/last.pt`` for ``dexmots-eval``,
-``metrics.json``).
+The loop ends as every baseline's (:class:`~.common.CollectorLoop`: ``metrics.jsonl``, ``checkpoints/last.pt``
+for ``dexmots-eval``, periodic evaluations, budget, ``metrics.json``) in the run directory every method
+writes (:class:`~.rundir.RunDirectory`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import sys
-import time
 
 import torch
 from omegaconf import DictConfig
@@ -28,13 +27,11 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
-from tqdm.auto import tqdm
 
-from .budget import RunBudget
-from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
-    tanh_gaussian_actor
+from .common import CollectorLoop, deployable_policy, make_train_env, mlp, policy_from_data, tanh_gaussian_actor
+from .rundir import RunDirectory
 
-__all__ = ["TRANSITION_KEYS", "build", "store_transitions", "train"]
+__all__ = ["TRANSITION_KEYS", "build", "load_policy", "store_transitions", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -73,22 +70,27 @@ def store_transitions(buffer: TensorDictReplayBuffer, data) -> None:
     buffer.extend(data.select(*TRANSITION_KEYS).reshape(-1))
 
 
-def train(cfg: DictConfig) -> dict:
-    """Train a SAC run; returns the final metrics dict (also written to ``metrics.json``)."""
-    a = cfg.algo
-    writer = RunWriter(cfg)
+def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
+    """Train a SAC run; returns the final metrics dict (also written to ``metrics.json``). SAC does not
+    resume (its replay buffer is not saved; ``resume=`` is refused, ``overrides`` are not used)."""
+    with RunDirectory(cfg, overrides, resumes=False) as run:
+        return _train(run)
+
+
+def _train(run: RunDirectory) -> dict:
+    cfg, a = run.cfg, run.cfg.algo
     env, vecnorm, actor, loss, updater, optimizer, buffer = build(cfg)
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=iterations * frames_per_batch,
-                          init_random_frames=int(a.init_random_frames), device=cfg.device,
-                          exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+    loop = CollectorLoop(run, policy, vecnorm, iterations)  # a fresh run: SAC does not resume
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch,
+                          total_frames=loop.frames_left(frames_per_batch), init_random_frames=int(a.init_random_frames),
+                          device=cfg.device, exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)
     updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
-    counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "updates": 0}
-    bar = tqdm(total=iterations, desc=f"sac {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
-    budget, stopped_by = RunBudget.from_config(cfg), None
-    t_start = time.perf_counter()
+    counters = loop.counters
+    counters["updates"] = 0
     for data in collector:
         store_transitions(buffer, data)
         counters["iteration"] += 1
@@ -110,27 +112,16 @@ def train(cfg: DictConfig) -> dict:
             counters["updates"] += updates_per_batch
         collector.update_policy_weights_()
 
-        counters["wall_clock_s"] = time.perf_counter() - t_start
         n = updates_per_batch if learning else 1
-        row = {**batch_metrics(data, counters), **{k: v / n for k, v in stats.items()},
-               "alpha": float(loss.log_alpha.detach().exp()), "updates": counters["updates"]}
-        writer.log(row)
-        bar.update(1)
-        bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
-                        reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
-        stopped_by = budget.reached(counters)
-        last = counters["iteration"] == iterations or stopped_by is not None
-        evaluate_now = cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last
-        if last or counters["iteration"] % cfg.checkpoint_every == 0 or evaluate_now:
-            sync_obs_norm(policy, vecnorm)
-            writer.checkpoint(counters, {"policy": policy, "loss": loss, "vecnorm": vecnorm}, {"optimizer": optimizer})
-            if evaluate_now:
-                t_eval = time.perf_counter()
-                writer.evaluate(policy, counters, final=False)
-                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
-        if stopped_by is not None:
+        stats = {**{k: v / n for k, v in stats.items()}, "alpha": float(loss.log_alpha.detach().exp()),
+                 "updates": counters["updates"]}
+        if loop.end_iteration(data, stats, {"policy": policy, "loss": loss, "vecnorm": vecnorm},
+                              {"optimizer": optimizer}):
             break
-    bar.close()
-    collector.shutdown()
-    sync_obs_norm(policy, vecnorm)
-    return writer.evaluate(policy, counters, budget=budget.record(stopped_by))
+    return loop.finish(collector)
+
+
+def load_policy(data: dict, env):
+    """The deployable policy (normaliser + actor with its scale head) of a SAC checkpoint ``data`` on the
+    plain task ``env``."""
+    return policy_from_data(data, env, state_scale=True)

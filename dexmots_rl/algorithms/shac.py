@@ -13,9 +13,10 @@ with its weight raised only while the share of capped adjoints is above ``algo.s
 observation statistics updated outside the graph -> TD(lambda) targets with the target critic on the
 detached rollout -> critic minibatch iterations -> polyak update of the target critic -> the episodes
 continue from the rollout's last state (graph cut) -> the best policy so far is kept, and restored after a
-collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory gets the
-resolved config, torchrl logger output, ``metrics.jsonl`` (one line per iteration), checkpoints and, at
-the end, ``metrics.json`` with the final evaluation (:mod:`.evaluate`).
+collapse of training success (``algo.keep_best``, :mod:`.best_policy`). The run directory every method
+writes (:class:`~.rundir.RunDirectory`) gets the resolved config, torchrl logger output, ``metrics.jsonl``
+(one line per iteration), checkpoints and, at the end, ``metrics.json`` with the final evaluation
+(:mod:`.evaluation`).
 """
 
 from __future__ import annotations
@@ -26,28 +27,23 @@ import sys
 import threading
 import time
 import warnings
-from pathlib import Path
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
-from ..atomic import atomic_write_json, dumps_json
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
 from .best_policy import BestPolicy
 from .budget import RunBudget
-from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .distributed import Distributed
-from .evaluation import evaluate_policy, periodic_episodes
 from .networks import make_networks
-from .rundir import RunDirLock, prepare_fresh_run_dir, resume_config, truncate_logs
-from .validation import validate_run_config
+from .rundir import RunDirectory
 
-__all__ = ["build", "train"]
+__all__ = ["build", "load_policy", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -86,35 +82,14 @@ def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     when stopped early by ``stop_after``, or ``{"interrupted": "SIGINT", ...}`` after SIGINT/SIGTERM (a
     checkpoint is saved first).
 
-    Before any work: the config is validated (:func:`.validation.validate_run_config`), the run directory
-    is locked, and a fresh run refuses a directory holding another run unless ``overwrite=true``. A
-    resume takes the checkpoint's task/algo/seed; ``overrides`` (the command line's, from the hydra
-    app) that change them fail, ``None`` compares the whole ``cfg`` (:func:`.rundir.resume_config`), and
-    log rows past the checkpoint are truncated (:func:`.rundir.truncate_logs`)."""
-    start = None
-    if not cfg.resume:
-        validate_run_config(cfg)
-        run_dir = Path(cfg.run_dir)
-    else:  # what is validated is what trains: the checkpoint's config with the user's run keys
-        start = load_checkpoint(latest_checkpoint(cfg.resume))
-        cfg = resume_config(cfg, start, cfg.resume, overrides)
-        validate_run_config(cfg)
-        for what, name in (("task", cfg.task.name), ("algo", cfg.algo.name)):
-            if start.get(what) != name:
-                raise CheckpointError(f"{cfg.resume} was trained with {what} {start.get(what)!r}, not {name!r}")
-        run_dir = Path(cfg.resume)
+    Before any work the run directory is opened (:class:`~.rundir.RunDirectory`): the config validated,
+    the directory locked, and a fresh run refuses a directory holding another run unless
+    ``overwrite=true``. A resume takes the checkpoint's task/algo/seed; ``overrides`` (the command line's,
+    from the hydra app) that change them fail, ``None`` compares the whole ``cfg``
+    (:func:`.rundir.resume_config`), and log rows past the checkpoint are truncated."""
     dist = Distributed.from_environment()
-    lock = RunDirLock(run_dir) if dist.is_main else None
-    try:
-        if dist.is_main and start is None:
-            prepare_fresh_run_dir(run_dir, bool(cfg.get("overwrite", False)))
-        elif dist.is_main:
-            truncate_logs(run_dir, int(start["iteration"]))
-        with _StopOnSignal() as stop:
-            return _train(cfg, run_dir, start, dist, stop)
-    finally:
-        if lock is not None:
-            lock.close()
+    with RunDirectory(cfg, overrides, main=dist.is_main) as run, _StopOnSignal() as stop:
+        return _train(run, dist, stop)
 
 
 class _StopOnSignal:
@@ -141,7 +116,8 @@ class _StopOnSignal:
             signal.signal(sig, handler)
 
 
-def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
+def _train(run: RunDirectory, dist, stop) -> dict:
+    cfg, start = run.cfg, run.start
     env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac = build(cfg, dist.rank)
     modules = {"actor": actor, "critic": critic, "loss": loss, "norm": norm}
     if ahac is not None:
@@ -164,10 +140,6 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         td = TensorDict.from_dict(start["env_state"], batch_size=td.batch_size)
         torch.set_rng_state(start["rng"]["torch"])
         env.base_env.generator.set_state(start["rng"]["env"])
-    if dist.is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    logger = _logger(cfg, run_dir) if dist.is_main else None
     iterations = cfg.algo.iterations
     bar = tqdm(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
                disable=not (cfg.progress and dist.is_main), file=sys.stderr)
@@ -249,32 +221,24 @@ def _train(cfg, run_dir: Path, start, dist, stop) -> dict:
         bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
                         reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
         if dist.is_main:
-            _log_row(logger, run_dir, row)
+            run.log(row)
             last = counters["iteration"] == stop_at or stopped_by is not None
             if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
-                _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
+                _save(run, counters, modules, optimizers, td, env, best)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
                 t_eval = time.perf_counter()
-                ev = evaluate_policy(actor, cfg.task, periodic_episodes(cfg.eval), cfg.eval.seed, cfg.device,
-                                     **_rec(cfg, run_dir))
-                _log_row(logger, run_dir, {"iteration": counters["iteration"],
-                                           **{f"eval_{k}": v for k, v in ev.items() if isinstance(v, (int, float))}})
+                run.evaluate(actor, counters, final=False)
                 t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
     bar.close()
     result = {}
     if interrupted:
-        result = {"interrupted": stop.signal or "signal", "iteration": counters["iteration"], "run_dir": str(run_dir)}
+        result = {"interrupted": stop.signal or "signal", "iteration": counters["iteration"], "run_dir": str(run.dir)}
     if dist.is_main and (counters["iteration"] == iterations or stopped_by is not None) and not interrupted:
         final_policy = _final_policy(best)
         if final_policy["source"] == "best":  # the checkpoint holds the policy that is evaluated
-            _save(run_dir, cfg, counters, modules, optimizers, td, env, best)
-        ev = evaluate_policy(actor, cfg.task, cfg.eval.episodes, cfg.eval.seed, cfg.device, **_rec(cfg, run_dir))
-        result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
-                  "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
-                  "skipped_updates": counters["skipped_updates"], "final_policy": final_policy,
-                  "budget": budget.record(stopped_by),
-                  "run_dir": str(run_dir)}
-        atomic_write_json(run_dir / "metrics.json", result)
+            _save(run, counters, modules, optimizers, td, env, best)
+        result = run.evaluate(actor, counters, budget=budget.record(stopped_by),
+                              skipped_updates=counters["skipped_updates"], final_policy=final_policy)
     dist.close()
     return result
 
@@ -311,11 +275,6 @@ def _final_policy(best: BestPolicy | None) -> dict:
     return record
 
 
-def _rec(cfg, run_dir: Path) -> dict:
-    """Evaluation recording options: ``<run_dir>/eval.mcap``, rewritten after every evaluation (live)."""
-    return {"record": run_dir / "eval.mcap", "live": True} if cfg.eval.record else {}
-
-
 def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, horizon, dist) -> dict:
     nxt = rollout.get("next")
     done = nxt.get("done").squeeze(-1)
@@ -341,33 +300,19 @@ def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, 
     return row
 
 
-def _logger(cfg, run_dir: Path):
-    from torchrl.record.loggers import get_logger
-
-    if cfg.logger not in ("csv", "tensorboard"):
-        raise ValueError(f"logger must be 'csv' or 'tensorboard', got {cfg.logger!r}")
-    return get_logger(cfg.logger, logger_name=str(run_dir), experiment_name="logs")
-
-
-def _log_row(logger, run_dir: Path, row: dict) -> None:
-    with open(run_dir / "metrics.jsonl", "a") as f:
-        f.write(dumps_json(row) + "\n")
-    if logger is not None:
-        for key, value in row.items():
-            if key not in ("iteration",) and isinstance(value, (int, float)) and value == value:
-                logger.log_scalar(key, value, step=row["iteration"])
+def _save(run: RunDirectory, counters, modules, optimizers, td, env, best=None) -> None:
+    """A checkpoint that resumes bit-identically on CPU: the env's state and both RNG streams too."""
+    run.checkpoint(counters, modules, optimizers, env_state=td.detach().to_dict(),
+                   rng={"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
+                   best=best.state_dict() if best is not None else None)
 
 
-def _save(run_dir, cfg, counters, modules, optimizers, td, env, best=None) -> None:
-    save_checkpoint(run_dir / "checkpoints" / "last.pt", {
-        "task": cfg.task.name,
-        "algo": cfg.algo.name,
-        "config": OmegaConf.to_container(cfg, resolve=True),
-        "iteration": counters["iteration"],
-        "counters": dict(counters),
-        "modules": {name: m.state_dict() for name, m in modules.items()},
-        "optimizers": {name: o.state_dict() for name, o in optimizers.items()},
-        "env_state": td.detach().to_dict(),
-        "rng": {"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
-        "best": best.state_dict() if best is not None else None,
-    })
+def load_policy(data: dict, env):
+    """The actor (with its observation normaliser) of a SHAC / AHAC checkpoint ``data`` on ``env``'s specs."""
+    algo = data["config"]["algo"]
+    actor, _, norm = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
+                                   tuple(algo["hidden"]), algo["init_log_std"],
+                                   layer_norm=algo.get("layer_norm", False))
+    actor.load_state_dict(data["modules"]["actor"])
+    norm.load_state_dict(data["modules"]["norm"])
+    return actor

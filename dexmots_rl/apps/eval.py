@@ -32,7 +32,8 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     from ..algorithms.checkpoint import CheckpointError
-    from ..algorithms.evaluation import evaluate_policy, policy_from_checkpoint
+    from ..algorithms.evaluation import evaluate_policy
+    from ..algorithms.registry import policy_from_checkpoint
 
     with os_errors_as_one_line("dexmots-eval"):
         _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError)

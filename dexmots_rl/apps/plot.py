@@ -4,7 +4,7 @@
     dexmots-plot curves RUN_DIR [RUN_DIR ...] --out curves.png [--keys success_rate reward] [--smooth 5]
 
 ``landscape``: the one-step objective near contact over the two distal joint actions, pose-only vs
-pose + wrench, with gradient arrows from the simulator (paper Fig. 4; :mod:`dexmots_rl.viz.plots`); the
+pose + wrench, with gradient arrows from the simulator (paper Fig. 4; :mod:`.landscape`); the
 per-panel numbers (objective range, median and max ``|∂J/∂a|``) are printed, as JSON with ``--json``.
 ``curves``: learning curves from torchrl ``CSVLogger`` run directories (``<run>/<exp>/scalars/*.csv``).
 """
@@ -47,6 +47,7 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(message)s")
     from ..viz import plots
+    from .landscape import landscape_data
 
     if args.figure == "curves":
         try:
@@ -55,8 +56,8 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"dexmots-plot curves: {exc}") from None
         return
     with contextlib.redirect_stdout(sys.stderr):  # warp reports kernel compilation with print()
-        data = plots.landscape_data(args.task, grid=args.grid, span=args.span, contact_steps=args.contact_steps,
-                                    twist=args.twist, seed=args.seed)
+        data = landscape_data(args.task, grid=args.grid, span=args.span, contact_steps=args.contact_steps,
+                              twist=args.twist, seed=args.seed)
         fig = plots.plot_landscape(data, out=args.out)
     result = {"task": args.task, "out": args.out, "grid": args.grid, "settle_steps": data["settle_steps"],
               "contact_force_range": [data["contact_force_min"], data["contact_force_max"]],

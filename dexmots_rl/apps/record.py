@@ -71,21 +71,21 @@ def parse_overrides(tokens: list[str]) -> dict:
 
 def _load_checkpoint_module():
     try:
-        from ..algorithms import checkpoint, evaluation
+        from ..algorithms import checkpoint, registry
     except ImportError as exc:  # the training stack is not there (or broken): say so, not a bare traceback
         raise RuntimeError(f"loading a checkpoint needs dexmots_rl.algorithms ({exc})") from exc
-    return checkpoint, evaluation
+    return checkpoint, registry
 
 
 def env_from_checkpoint(path: str | Path, num_envs: int, seed: int = 0, device="cpu", steps: int | None = None):
     """``(env, checkpoint dict)``: a non-differentiable env built from the checkpoint's task config."""
-    checkpoint, evaluation = _load_checkpoint_module()
+    checkpoint, registry = _load_checkpoint_module()
     path = Path(path)
     data = checkpoint.load_checkpoint(checkpoint.latest_checkpoint(path) if path.is_dir() else path)
     task_cfg = dict(data["config"]["task"])
     if steps is not None:
         task_cfg["max_episode_steps"] = steps
-    return evaluation.make_env(task_cfg, num_envs=num_envs, differentiable=False, seed=seed, device=device), data
+    return registry.make_env(task_cfg, num_envs=num_envs, differentiable=False, seed=seed, device=device), data
 
 
 def policy_from_checkpoint(path: str | Path, env):
@@ -96,8 +96,8 @@ def policy_from_checkpoint(path: str | Path, env):
     ``ValueError`` when the actor does not fit ``env``'s observation (build ``env`` with
     :func:`env_from_checkpoint`).
     """
-    _, evaluation = _load_checkpoint_module()
-    actor, _ = evaluation.policy_from_checkpoint(path, device=env.device)
+    _, registry = _load_checkpoint_module()
+    actor, _ = registry.policy_from_checkpoint(path, device=env.device)
     try:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             actor(env.reset())

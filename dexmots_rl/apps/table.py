@@ -24,7 +24,7 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    learning curves come from periodic evaluations (``eval.every`` per method in the preset,
    ``eval.curve_episodes`` episodes each).
 4. Outputs in ``sweep_dir``: ``runs.csv`` (one row per run), ``table.md`` (Table 2's layout and the time to
-   90 % success: :mod:`dexmots_rl.viz.table_writer`), ``curves_<task>.png`` (Fig. 3c) and
+   90 % success: :mod:`dexmots_rl.apps.table_writer`), ``curves_<task>.png`` (Fig. 3c) and
    ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A tqdm bar on stderr counts
    finished runs; the table is printed at the end.
 
@@ -42,7 +42,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ..viz.table_writer import NO_TRAINING
+from .table_writer import NO_TRAINING
 
 __all__ = ["main", "run_table", "train_job"]
 
@@ -207,7 +207,7 @@ def _budget_text(budget: dict, rows: list[dict]) -> str:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from ..viz.table_writer import markdown_table, time_to_success_table
+    from .table_writer import markdown_table, time_to_success_table
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
     methods = [(m.name, m.label) for m in spec.methods]
@@ -236,7 +236,7 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
 
 def _figures(spec, runs, rows: list[dict]) -> list[str]:
     from ..viz.table_plots import plot_action_spaces, plot_learning_curves
-    from ..viz.table_writer import learning_curve
+    from .table_writer import learning_curve
 
     import matplotlib.pyplot as plt
 
@@ -263,16 +263,16 @@ def run_table(cfg) -> dict:
     """Check the spec, run what is not finished, write runs.csv, table.md and the figures; returns
     ``{"sweep_dir", "runs", "launched", "skipped", "failed", "table"}``."""
     from .. import envs
-    from ..viz.table_writer import run_row, write_csv
+    from .table_writer import run_row, write_csv
+    from ..algorithms.registry import list_algorithms
     from .table_spec import finished_metrics, sweep_spec
-    from .train import TRAINERS
 
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
     threads = _threads(cfg, cores)
-    spec = sweep_spec(cfg, list(TRAINERS), envs.list_tasks(),
+    spec = sweep_spec(cfg, list_algorithms(), envs.list_tasks(),
                       {t: envs.task_config(t).action for t in envs.list_tasks()})
     runs = spec.runs(threads)
     pending = [r for r in runs if finished_metrics(r) is None]

@@ -211,7 +211,7 @@ def _per_name(value, field_name: str, known: Sequence[str], what: str) -> dict[s
 
 def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_actions: Mapping[str, str]) -> SweepSpec:
     """The checked spec of a ``dexmots-table`` config; ``algos``: what ``dexmots-train`` can run
-    (``TRAINERS``), ``registered``: ``list_tasks()``, ``default_actions``: each task's ``task.action``."""
+    (``list_algorithms()``), ``registered``: ``list_tasks()``, ``default_actions``: each task's ``task.action``."""
     c = {k: _plain(cfg.get(k)) for k in cfg.keys()}
     catalog = _catalog(c.get("method_catalog"))
 

@@ -4,14 +4,14 @@
     dexmots-train task=screw_claw algo=shac seed=1 algo.iterations=100
     dexmots-train task.action=torque task.reward.lambda_f=0.5     # any field of the task's typed config
     dexmots-train resume=runs/screw_claw_ahac_seed0 # continue from the last checkpoint
-    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac | pgdm (no resume)
+    dexmots-train algo=ppo task.goal=pose           # model-free baselines: algo=ppo | sac | pgdm
     dexmots-train algo=mpc                          # sampling MPC + gradient refinement: evaluation only
     dexmots-train --cfg job                         # print the composed config
     torchrun --nproc_per_node 2 -m dexmots_rl.apps.train task.num_envs=32   # data parallel
 
 ``task=<name>`` composes the task's typed config (``dexmots_rl.envs.task_config(name)``, registered in
 hydra's ConfigStore): the trainer trains exactly ``make_env(name)``. The method is ``algo=<name>``
-(:mod:`dexmots_rl.algorithms`).
+(:mod:`dexmots_rl.algorithms.registry`).
 """
 
 from __future__ import annotations
@@ -21,11 +21,7 @@ import logging
 import sys
 from pathlib import Path
 
-__all__ = ["CONFIG_DIR", "TRAINERS", "config_dir", "main"]
-
-#: algo name -> the module of :mod:`dexmots_rl.algorithms` whose ``train(cfg)`` runs it (imported on use: each
-#: pulls in only what it needs); ``dexmots-table`` reads it to know which methods can run
-TRAINERS = {"shac": "shac", "ahac": "shac", "ppo": "ppo", "sac": "sac", "pgdm": "pgdm", "mpc": "mpc"}
+__all__ = ["CONFIG_DIR", "config_dir", "main", "run"]
 
 
 def config_dir() -> Path:
@@ -47,10 +43,10 @@ CONFIG_DIR = config_dir()
 
 def run(cfg, overrides: list[str] | None = None) -> dict:
     """Train with the method ``cfg.algo.name`` (after the tasks are registered); ``overrides``: the
-    command line's, which a SHAC/AHAC resume compares with its checkpoint (:func:`dexmots_rl.algorithms.shac.train`)."""
-    import importlib
-
+    command line's, which a resume compares with its checkpoint (:func:`dexmots_rl.algorithms.rundir.resume_config`)."""
     import torch
+
+    from ..algorithms.registry import train
 
     threads = cfg.get("torch_threads")
     if threads is not None:
@@ -58,12 +54,7 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
             raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
         if str(cfg.device).startswith("cpu"):
             torch.set_num_threads(threads)
-    if cfg.algo.name not in TRAINERS:
-        raise ValueError(f"algo {cfg.algo.name!r} is unknown; known: {', '.join(TRAINERS)}")
-    module = importlib.import_module(f"..algorithms.{TRAINERS[cfg.algo.name]}", __package__)
-    if TRAINERS[cfg.algo.name] == "shac":
-        return module.train(cfg, overrides)
-    return module.train(cfg)
+    return train(cfg, overrides)
 
 
 def main() -> None:

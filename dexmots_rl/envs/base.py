@@ -6,8 +6,9 @@ The full physical state of every world travels in the TensorDict under ``"sim"``
 TensorDict. With ``differentiable=True`` gradients flow from anything computed on the output
 (rewards, observations) back to the actions and the input state through :class:`~dexmots_rl.sim.SimStep`.
 
-Task modules subclass :class:`DexEnv` and implement :meth:`sample_initial`, :meth:`task_reward`,
-:meth:`task_success` and :meth:`reference`.
+Task modules subclass :class:`DexEnv` and implement its abstract hooks (:meth:`sample_initial`,
+:meth:`reference`, :meth:`achieved_goal`, :meth:`task_reward`, :meth:`task_success`);
+:func:`~dexmots_rl.envs.registry.register_task` refuses a class that lacks one, naming it.
 
 The task's final goal is carried under ``("task", "goal")`` (what the env reads back); ``"desired_goal"``
 is written for the policy (the final goal by default; the goal-conditioning transforms replace it with
@@ -15,6 +16,8 @@ the reference window) and never read back. Reward terms are written under ``("re
 """
 
 from __future__ import annotations
+
+from abc import abstractmethod
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -36,7 +39,8 @@ MAX_JOINT_SPEED = 1.0e3  # rad/s (m/s); a world faster than this has blown up an
 class DexEnv(EnvBase):
     """Base class: specs, functional step/reset, blow-up handling. See the task modules.
 
-    A task subclass sets ``asset`` (its MJCF in :mod:`dexmots_rl.assets`) and ``config_class``, and is
+    A task subclass sets ``asset`` (its MJCF in :mod:`dexmots_rl.assets`), implements the abstract hooks
+    and is registered with its config class (:func:`~dexmots_rl.envs.registry.register_task`); it is
     built from a config: ``TaskEnv(config, num_envs=...)`` (``make_env`` does this).
     """
 
@@ -149,19 +153,20 @@ class DexEnv(EnvBase):
     goal_dim = 1
     reward_terms: tuple[str, ...] = ()
 
+    @abstractmethod
     def sample_initial(self, n: int) -> dict:
         """Initial ``joint_q``, ``joint_qd``, ``params``, ``goal`` and ``ref_index`` [n, 1] (int64) for ``n``
         worlds (use self.generator)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def reference(self, td: TensorDictBase, steps: torch.Tensor) -> TensorDictBase:
         """The object-centric reference at env steps ``steps`` [N, H] of each world's plan: a TensorDict
         [N, H] with ``"pose"`` [7], ``"joint_q"`` [K], ``"wrench"`` [6] and ``"joint_torque"`` [K]; ``td``
         holds the worlds' ``("task", ...)`` and ``("sim", ...)`` entries."""
-        raise NotImplementedError
 
+    @abstractmethod
     def achieved_goal(self, obs: dict) -> torch.Tensor:
-        raise NotImplementedError
+        """[N, goal_dim] the goal coordinates the object has reached (compared with ``("task", "goal")``)."""
 
     def goal_window(self, td: TensorDictBase, steps: torch.Tensor, with_wrench: bool) -> torch.Tensor:
         """The goal-conditioning window [N, H, D (+ W)]: the reference's object coordinates at ``steps``
@@ -186,13 +191,14 @@ class DexEnv(EnvBase):
         recordings and plots); tasks without one raise ``NotImplementedError``."""
         raise NotImplementedError(f"{type(self).__name__} has no scripted controller")
 
+    @abstractmethod
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
         """``(reward [N, 1], {term name: [N, 1]})`` after a step; ``task`` holds ``("task", ...)`` entries
         (goal, the step counter after the step, ref_index) and the ``("sim", "params", name)`` entries."""
-        raise NotImplementedError
 
+    @abstractmethod
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
-        raise NotImplementedError
+        """[N, 1] bool: worlds whose object meets the task's success test for ``goal`` [N, goal_dim]."""
 
     def goal_error(self, achieved: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """[...] the error the success threshold is compared with, for ``achieved_goal`` and goal tensors

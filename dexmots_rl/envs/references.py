@@ -27,10 +27,9 @@ from typing import Sequence
 import torch
 from tensordict import TensorDict
 
-__all__ = ["MAX_ABS_COORDINATE", "MAX_ABS_WRENCH", "REFERENCE_KEYS", "check_reference_values", "load_reference_bank",
+__all__ = ["MAX_ABS_COORDINATE", "MAX_ABS_WRENCH", "check_reference_values", "load_reference_bank",
            "lookup"]
 
-REFERENCE_KEYS = ("pose", "joint_q", "wrench", "joint_torque")
 # Sanity bounds of a plan an env accepts: 100 rad is ~16 turns of a knob and 100 m is far outside any
 # scene; a plan past them is corrupt or mis-scaled (a 3.46e8 rad reference was once accepted silently).
 MAX_ABS_COORDINATE = 100.0

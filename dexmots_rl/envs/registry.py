@@ -45,7 +45,15 @@ TASKS: dict[str, TaskEntry] = {}
 
 
 def register_task(name: str, env_class: type[DexEnv], config_class: type[TaskConfig]) -> None:
-    """Add a task (and its config to hydra's ConfigStore as ``task/<name>``)."""
+    """Add a task (and its config to hydra's ConfigStore as ``task/<name>``). A ``ValueError`` names what
+    is wrong: an ``env_class`` that is not a :class:`DexEnv` or lacks one of its abstract hooks, or a config
+    whose ``name`` is not ``name``."""
+    if not (isinstance(env_class, type) and issubclass(env_class, DexEnv)):
+        raise ValueError(f"task {name!r}: the env class must subclass DexEnv, got {env_class!r}")
+    missing = sorted(getattr(env_class, "__abstractmethods__", ()))
+    if missing:
+        raise ValueError(f"task {name!r}: {env_class.__name__} does not implement the task hook(s) "
+                         f"{', '.join(missing)} (abstract in DexEnv)")
     if config_class().name != name:
         raise ValueError(f"{config_class.__name__}.name is {config_class().name!r}, registered as {name!r}")
     TASKS[name] = TaskEntry(name, env_class, config_class)

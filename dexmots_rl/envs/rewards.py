@@ -27,7 +27,6 @@ __all__ = [
     "RewardCoefficients",
     "action_penalty",
     "angle_tracking_reward",
-    "dexmots_reward",
     "distal_weighted_joint_weights",
     "fingertip_reward",
     "pose_reward",
@@ -213,49 +212,3 @@ class RewardCoefficients:
                 raise ValueError(f"{f.name} must be a real number, got {v!r}")
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{f.name} must be finite and >= 0, got {v!r}")
-
-
-def dexmots_reward(
-    *,
-    pose: torch.Tensor,
-    target_pose: torch.Tensor,
-    wrench: torch.Tensor,
-    target_wrench: torch.Tensor,
-    action: torch.Tensor,
-    fingertips: torch.Tensor,
-    joint_weights: torch.Tensor | None = None,
-    q: torch.Tensor | None = None,
-    target_q: torch.Tensor | None = None,
-    coeffs: RewardCoefficients | None = None,
-    rot_scale: float = 1.0,
-    force_scale: float = 1.0,
-    torque_scale: float = 1.0,
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Eq. 3: ``r = λ_pose r_pose + λ_wrench r_wrench + λ_act r_act + λ_f r_f``, ``[..., 1]``.
-
-    Returns ``(total, terms)``; ``terms`` maps ``"pose"``, ``"wrench"``, ``"action"``, ``"fingertip"`` to
-    the unweighted terms ``[..., 1]`` (for logging under ``("reward_terms", name)``). The fingertip term
-    uses the object position ``pose[..., :3]``. Pose-only goal conditioning: ``lambda_wrench=0``.
-
-    Example:
-        >>> import torch
-        >>> p, w = torch.tensor([[0.0, 0, 0, 1, 0, 0, 0]]), torch.zeros(1, 6)
-        >>> total, terms = dexmots_reward(pose=p, target_pose=p, wrench=w, target_wrench=w,
-        ...                               action=torch.zeros(1, 4), fingertips=torch.zeros(1, 2, 3))
-        >>> total, sorted(terms)
-        (tensor([[2.2000]]), ['action', 'fingertip', 'pose', 'wrench'])
-    """
-    c = coeffs if coeffs is not None else RewardCoefficients()
-    terms = {
-        "pose": pose_reward(pose, target_pose, q, target_q, rot_scale=rot_scale),
-        "wrench": wrench_reward(wrench, target_wrench, force_scale, torque_scale),
-        "action": action_penalty(action, joint_weights),
-        "fingertip": fingertip_reward(fingertips, pose[..., :3]),
-    }
-    total = (
-        c.lambda_pose * terms["pose"]
-        + c.lambda_wrench * terms["wrench"]
-        + c.lambda_act * terms["action"]
-        + c.lambda_f * terms["fingertip"]
-    )
-    return total, terms

@@ -35,19 +35,13 @@ from .mjcf_shapes import (
     _quat_to_mat,
 )
 
-__all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "OBJECT_PARAM_DOCS", "load_scene"]
+__all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "load_scene"]
 
 HINGE, SLIDE = 0, 1
 OBJECT_HINGE, OBJECT_FREE = 0, 1
 # per-world object joint parameters, by name: the kernels read column OBJECT_PARAMS.index(name) of the
 # packed [N, P] array the simulator builds from the named tensors (see Simulator.pack_params)
 OBJECT_PARAMS = ("joint_damping", "joint_friction", "joint_stiffness", "joint_rest")
-OBJECT_PARAM_DOCS = {
-    "joint_damping": "viscous damping of the object joint (N m s/rad or N s/m)",
-    "joint_friction": "Coulomb friction of the object joint (N m or N), smoothed near zero speed",
-    "joint_stiffness": "spring stiffness of the object joint toward joint_rest (N m/rad or N/m)",
-    "joint_rest": "rest position of the object joint's spring (rad or m)",
-}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,10 +1,9 @@
-"""Visualisation: matplotlib figures (:mod:`.plots`: objective landscape, learning curves); MCAP recordings
-(:mod:`.recording` format, :mod:`.recorder`, :mod:`.reader`) and the viser replay viewer (:mod:`.viewer`)."""
+"""Visualisation, on top of everything else: matplotlib figures (:mod:`.plots`: objective landscape, learning
+curves; :mod:`.table_plots`: ``dexmots-table``'s figures) and the viser replay viewer (:mod:`.viewer`) of the
+MCAP recordings of :mod:`dexmots_rl.recording`, whose API is re-exported here."""
 
 from __future__ import annotations
 
-from .reader import read_recording
-from .recorder import EpisodeRecorder
-from .recording import Recording, RecordingFormatError
+from ..recording import EpisodeRecorder, Recording, RecordingFormatError, read_recording
 
 __all__ = ["EpisodeRecorder", "Recording", "RecordingFormatError", "read_recording"]

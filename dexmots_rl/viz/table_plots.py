@@ -1,7 +1,8 @@
 """``dexmots-table``'s figures (matplotlib, Agg backend), from the runs' learning curves and ``runs.csv`` rows.
 
 * :func:`plot_learning_curves` — Fig. 3c: success vs env steps and vs training wall-clock for one task, one
-  line per method. Each seed's curve (:func:`.table_writer.learning_curve`) is interpolated onto a common
+  line per method. Each seed's curve
+  (:func:`dexmots_rl.apps.table_writer.learning_curve`) is interpolated onto a common
   grid over the range every seed covers; the line is the mean over seeds, the band their min–max.
 * :func:`plot_action_spaces` — Fig. 3b: success per action space (``task.action``) and method for one task,
   bars of the mean over seeds with ± s.d. error bars.

@@ -21,7 +21,7 @@ A port that is taken is an error (viser itself would silently move to the next p
 Example:
     >>> import os, tempfile
     >>> from dexmots_rl.envs import make_env
-    >>> from dexmots_rl.viz import EpisodeRecorder
+    >>> from dexmots_rl.recording import EpisodeRecorder
     >>> env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0)
     >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
     >>> with EpisodeRecorder(path, env) as rec:
@@ -48,10 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, box_mesh, link_mesh
-from .reader import read_recording
-from .recorder import FORCE_SCALE, TORQUE_SCALE
-from .recording import Recording, RecordingFormatError
+from ..recording.geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, box_mesh, link_mesh
+from ..recording.reader import read_recording
+from ..recording.recorder import FORCE_SCALE, TORQUE_SCALE
+from ..recording.format import Recording, RecordingFormatError
 
 __all__ = ["PortInUseError", "check_port_free", "ReplayViewer", "main"]
 

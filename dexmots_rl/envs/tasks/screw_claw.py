@@ -71,7 +71,6 @@ class ScrewClawEnv(KnobTurnEnv):
     """Claw + knob on a vertical hinge; see the module docstring."""
 
     asset = "claw_screw.xml"
-    config_class = ScrewClawConfig
     # joint order: right proximal, right distal, left proximal, left distal, knob angle. Closing is negative
     # on the right finger and positive on the left (see the MJCF joint ranges).
     bench = BenchPoses(

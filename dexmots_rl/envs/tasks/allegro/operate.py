@@ -76,7 +76,7 @@ def _cached_pregrasps(task: str, num_dofs: int) -> np.ndarray:
 
 
 class OperateEnv(KnobTurnEnv):
-    """Allegro hand + an operable object; a task gives ``asset``, ``config_class``, ``contact_regions``,
+    """Allegro hand + an operable object; a task gives ``asset``, ``contact_regions``,
     ``pregrasp_hint`` and its bench poses."""
 
     contact_params = HAND_CONTACT

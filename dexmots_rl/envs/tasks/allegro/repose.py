@@ -131,7 +131,6 @@ class ReposeCubeEnv(DexEnv):
     """Allegro palm up + a free cube; see the module docstring."""
 
     asset = "allegro_cube.xml"
-    config_class = ReposeCubeConfig
     goal_dim = 7
     reward_terms = ("pose", "wrench", "action", "fingertip", "precision", "position", "drop")
     contact_params = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)

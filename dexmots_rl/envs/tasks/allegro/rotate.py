@@ -65,7 +65,6 @@ class AllegroRotateEnv(KnobTurnEnv):
     """Allegro hand + knob on a vertical hinge; see the module docstring."""
 
     asset = "allegro_knob.xml"
-    config_class = AllegroRotateConfig
     contact_params = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
     bench = BenchPoses(
         open_q=(*OPEN, 0.0),

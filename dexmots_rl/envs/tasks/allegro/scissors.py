@@ -43,7 +43,6 @@ class ScissorsEnv(OperateEnv):
     """Allegro hand + scissors; see the module docstring."""
 
     asset = "allegro_scissors.xml"
-    config_class = ScissorsConfig
     contact_regions = (
         ContactRegion(0, "operated_blade", (-0.06, 0.008, 0.0), (0.0, 1.0, 0.0), (0.006, 0.0, 0.003)),  # index
         ContactRegion(1, "operated_blade", (-0.035, 0.0, 0.009), (0.0, 0.0, 1.0), (0.006, 0.003, 0.0)),  # middle

@@ -41,7 +41,6 @@ class SprayBottleEnv(OperateEnv):
     """Allegro hand + spray bottle; see the module docstring."""
 
     asset = "allegro_spray_bottle.xml"
-    config_class = SprayBottleConfig
     contact_regions = (
         ContactRegion(0, "trigger", (0.006, 0.0, 0.008), (1.0, 0.0, 0.0), (0.0, 0.004, 0.003)),  # index, upper
         ContactRegion(1, "trigger", (0.006, 0.0, -0.01), (1.0, 0.0, 0.0), (0.0, 0.004, 0.003)),  # middle, lower

@@ -41,7 +41,6 @@ class StaplerEnv(OperateEnv):
     """Allegro hand + stapler; see the module docstring."""
 
     asset = "allegro_stapler.xml"
-    config_class = StaplerConfig
     contact_regions = (
         ContactRegion(0, "arm", (0.03, 0.006, 0.006), (0.0, 0.0, 1.0), (0.01, 0.003, 0.0)),  # index
         ContactRegion(1, "arm", (0.06, -0.004, 0.006), (0.0, 0.0, 1.0), (0.01, 0.003, 0.0)),  # middle

@@ -1,8 +1,8 @@
-"""``read_recording``: a DexMOTS MCAP recording (format: :mod:`.recording`) back to tensors.
+"""``read_recording``: a DexMOTS MCAP recording (format: :mod:`.format`) back to tensors.
 
 The whole file is read record by record with CRCs checked, so a truncated or corrupted file, a file
 that is not MCAP, or an MCAP file that is not a DexMOTS recording raises one
-:class:`~dexmots_rl.viz.recording.RecordingFormatError` naming the file and the problem.
+:class:`~dexmots_rl.recording.format.RecordingFormatError` naming the file and the problem.
 
 Example:
     >>> import os, tempfile
@@ -28,7 +28,7 @@ import torch
 from tensordict import TensorDict
 
 from .geometry import LinkGeometry, SceneGeometry
-from .recording import (FORMAT_NAME, FORMAT_VERSION, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, Recording,
+from .format import (FORMAT_NAME, FORMAT_VERSION, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, Recording,
                         RecordingFormatError, body_frame, world_frame)
 
 __all__ = ["read_recording", "RecordingFormatError"]
@@ -97,7 +97,7 @@ def _geometry(path: Path, scene, num_bodies: int, body_names: list[str]) -> Scen
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
-    """Load a recording written by :class:`~dexmots_rl.viz.EpisodeRecorder` (values exact); see the module docstring."""
+    """Load a recording written by :class:`~dexmots_rl.recording.EpisodeRecorder` (values exact); see the module docstring."""
     from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 

@@ -27,6 +27,8 @@ import statistics
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from ..algorithms.budget import NO_TRAINING
+
 __all__ = ["CSV_FIELDS", "NO_TRAINING", "learning_curve", "markdown_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
@@ -36,9 +38,8 @@ CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "succe
 _INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps")
 _FLOATS = ("success", "wall_clock_s", "time_to_90_s", "budget_wall_clock_s")
 DASH = "–"  # a cell without finished runs
-#: ``budget.stopped_by`` of a run that trains nothing (``algo=mpc`` plans inside its evaluation episodes): no
-#: training budget applied to it, and the table reports "no training" rather than a time to 90 %
-NO_TRAINING = "no_training"
+# NO_TRAINING (:mod:`dexmots_rl.algorithms.budget`): the ``budget.stopped_by`` of a run that trains nothing
+# (``algo=mpc`` plans inside its evaluation episodes); the table reports "no training", not a time to 90 %
 
 
 def _jsonl(path: Path) -> list[dict]:

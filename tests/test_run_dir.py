@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
-import dexmots_rl.algorithms.shac as shac
 from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
-from dexmots_rl.algorithms.rundir import RunDirLock
+from dexmots_rl.algorithms.rundir import RunDirectory, RunDirLock
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from test_train import _cfg, _rows
 
@@ -69,6 +69,25 @@ def test_existing_run_dir_is_refused_without_overwrite(tmp_path):
     assert [r["iteration"] for r in _rows(run)] == [1, 2]  # the old run's rows are gone, not appended to
 
 
+def test_a_run_failing_before_its_first_write_leaves_no_directory(tmp_path, monkeypatch):
+    import dexmots_rl.algorithms.shac as shac
+
+    def broken_build(cfg, rank=0):
+        raise RuntimeError("no env today")
+
+    monkeypatch.setattr(shac, "build", broken_build)
+    run = tmp_path / "new_run"
+    with pytest.raises(RuntimeError, match="no env today"):
+        train(_cfg(run, "algo.iterations=1"))
+    assert not run.exists()
+    mine = tmp_path / "existing"  # a directory the user made is theirs: it stays, unlocked
+    mine.mkdir()
+    with pytest.raises(RuntimeError, match="no env today"):
+        train(_cfg(mine, "algo.iterations=1"))
+    assert mine.is_dir()
+    RunDirLock(mine).close()
+
+
 def test_locked_run_dir_fails_clearly(tmp_path):
     run = tmp_path / "run"
     with RunDirLock(run):
@@ -100,6 +119,15 @@ def test_resume_after_a_crash_repeats_no_log_rows_and_cleans_temp_files(tmp_path
     assert not stale.exists()
 
 
+def test_a_resumed_run_names_its_own_directory(tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(run, "algo.iterations=2", "stop_after=1"))
+    result = train(_cfg(tmp_path / "elsewhere", "algo.iterations=2", f"resume={run}"))
+    assert Path(OmegaConf.load(run / "config.yaml").run_dir) == run  # the config names the run it describes
+    assert Path(load_checkpoint(run / "checkpoints" / "last.pt")["config"]["run_dir"]) == run
+    assert Path(result["run_dir"]) == run and not (tmp_path / "elsewhere").exists()
+
+
 def test_resume_uses_the_checkpoints_config_and_refuses_conflicting_overrides(tmp_path):
     run = tmp_path / "run"
     train(_cfg(run, "algo.iterations=1"))  # TINY: 4 worlds, horizon 4, shac
@@ -127,14 +155,14 @@ def test_cli_resume_conflict_is_one_line_and_hydra_rewrites_nothing(tmp_path):
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, sig):
-    log_row = shac._log_row
+    log_row = RunDirectory.log
 
-    def log_and_signal(logger, run_dir, row):
-        log_row(logger, run_dir, row)
+    def log_and_signal(self, row):
+        log_row(self, row)
         if row["iteration"] == 1:
             os.kill(os.getpid(), sig)
 
-    monkeypatch.setattr(shac, "_log_row", log_and_signal)
+    monkeypatch.setattr(RunDirectory, "log", log_and_signal)
     run = tmp_path / "run"
 
     def outer(signum, frame):  # the caller's own handler (the default one is SIG_IGN under `nohup ... &`)

@@ -1,4 +1,4 @@
-"""``EpisodeRecorder``: episodes of any DexMOTS env to an MCAP recording (format: :mod:`.recording`).
+"""``EpisodeRecorder``: episodes of any DexMOTS env to an MCAP recording (format: :mod:`.format`).
 
 Frames are encoded as they are recorded and kept in memory; :meth:`EpisodeRecorder.close` writes the file
 atomically (a temp file in the same folder, fsync, ``os.replace``), so a reader never sees half a file.
@@ -14,7 +14,7 @@ Example:
     >>> with EpisodeRecorder(path, env, start_time_ns=0) as rec:
     ...     rec.record_rollout(env.rollout(3, tensordict=env.reset(), auto_reset=False,
     ...                                  break_when_any_done=False))
-    >>> from dexmots_rl.viz import read_recording
+    >>> from dexmots_rl.recording import read_recording
     >>> read_recording(path).frames["body_pose"].shape
     torch.Size([4, 2, 5, 7])
 """
@@ -34,7 +34,7 @@ from tensordict import TensorDictBase
 
 from ..atomic import atomic_write
 from .geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, scene_geometry
-from .recording import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
+from .format import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
                         WRENCH_TOPIC, body_frame, world_frame)
 
 __all__ = ["EpisodeRecorder", "grid_offsets", "FORCE_SCALE", "TORQUE_SCALE"]

@@ -82,7 +82,7 @@ def body_frame(w: int, body: int, num_bodies: int) -> str:
 
 @dataclasses.dataclass
 class Recording:
-    """A recording read back by :func:`~dexmots_rl.viz.read_recording`.
+    """A recording read back by :func:`~dexmots_rl.recording.read_recording`.
 
     ``frames`` is a TensorDict of batch ``[F, N]`` (frames x worlds) with ``"body_pose"`` [F, N, B, 7],
     ``"goal_pose"`` [F, N, 7], ``"reward"``, ``"success"``, ``("task", "step")``, ``("object", "q")``,
