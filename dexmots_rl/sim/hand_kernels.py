@@ -26,6 +26,8 @@ __all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_C
 
 GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER = -1, 0, 1, 2, 3
 LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
+LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32: precomputed
+LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
 FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
 CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
 
@@ -96,8 +98,31 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         if x <= dtype(0.0):
             return dtype(0.0)
         if x < dtype(LIMIT_WIDTH):
-            return x * x * dtype(0.5 / LIMIT_WIDTH)
-        return x - dtype(0.5 * LIMIT_WIDTH)
+            return x * x * dtype(LIMIT_CURVE)
+        return x - dtype(LIMIT_OFFSET)
+
+    if J == 1:  # warp's inverse starts at 2 x 2
+
+        @wp.func
+        def solve_jj(A: matJ, b: vecJ):
+            return vecJ(b[0] / A[0, 0])
+
+    else:
+
+        @wp.func
+        def solve_jj(A: matJ, b: vecJ):
+            return wp.inverse(A) * b
+
+    @wp.func
+    def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
+        rq = wp.quat_from_matrix(R)
+        out[w, b * 7 + 0] = x[0]
+        out[w, b * 7 + 1] = x[1]
+        out[w, b * 7 + 2] = x[2]
+        out[w, b * 7 + 3] = rq[3]
+        out[w, b * 7 + 4] = rq[0]
+        out[w, b * 7 + 5] = rq[1]
+        out[w, b * 7 + 6] = rq[2]
 
     @wp.func
     def geom_distance(kind: int, size: vec3, p: vec3):

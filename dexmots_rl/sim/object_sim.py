@@ -29,7 +29,7 @@ from .object_model import MAX_SAMPLES, ObjectTree, object_tree
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
 
-LIMIT_FREQUENCY = 300.0  # rad/s: a range stop is as stiff as an oscillator of this frequency on the joint's inertia
+LIMIT_FREQUENCY = 1000.0  # rad/s: a range stop is as stiff as an oscillator of this frequency on the joint's inertia
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,30 @@
+"""A scene of the Allegro hand above a table with an articulated object on it (MJCF text).
+
+The hand is ``allegro_knob.xml``'s (the same links, joints, motors and mount: palm down, fingers along world
++x, fingertips curling down and back toward the thumb), with gravity on. The object (an
+:class:`~dexmots_rl.assets.objects.ObjectAsset`) stands on a table plane so that its grasp point (where a hand
+holds the tool) is at the world origin, where the knob of ``allegro_rotate`` stands: in the fingers' reach.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import asset_path
+
+__all__ = ["hand_object_scene_xml", "GRASP_POINT"]
+
+GRASP_POINT = (0.0, 0.0, 0.0)  # m, world: where the object's grasp point is placed
+
+
+def hand_object_scene_xml(asset, mesh_dir: str | Path, grasp_point=GRASP_POINT) -> str:
+    """MJCF of the Allegro hand with ``asset`` on a table; mesh files are written into ``mesh_dir``."""
+    hand = asset_path("allegro_knob.xml").read_text()
+    hand_body = hand[hand.index('    <body name="hand"'):hand.index('    <body name="object"')]
+    head = hand[hand.index("  <compiler"):hand.index("  <asset>")].replace('gravity="0 0 0"', 'gravity="0 0 -9.81"')
+    actuators = hand[hand.index("  <actuator>"):]
+    gx, gy, gz = (g - a for g, a in zip(grasp_point, asset.grasp))
+    assets, body = asset.mjcf(mesh_dir, pos=(gx, gy, gz))
+    return (f'<mujoco model="allegro_{asset.name}">\n{head}  <asset>\n{assets}  </asset>\n  <worldbody>\n'
+            f'    <geom name="table" type="plane" pos="0 0 {gz!r}" size="0.5 0.5 0.01" contype="1" conaffinity="2" '
+            f'rgba="0.8 0.75 0.65 1"/>\n{hand_body}{body}  </worldbody>\n{actuators}')
