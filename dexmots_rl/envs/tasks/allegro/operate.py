@@ -25,10 +25,10 @@ import numpy as np
 import torch
 
 from ....sim import ContactParams
-from ...config import BenchPoses, check_range
+from ...config import BenchPoses, rule
 from ...pregrasp import ContactRegion, PregraspError, load_pregrasps, pregrasp_path
 from ...rewards import RewardCoefficients
-from ..knob import PARAM_BREAKDOWNS, KnobTurnConfig, KnobTurnEnv
+from ..knob import PARAM_BREAKDOWNS, RANGE, KnobTurnConfig, KnobTurnEnv
 
 __all__ = ["OperateConfig", "OperateEnv", "HAND_CONTACT", "FLAT", "bench_poses"]
 
@@ -43,11 +43,12 @@ class OperateConfig(KnobTurnConfig):
 
     initial: str = "pregrasp"  # pregrasp (one of the task's pre-grasps, drawn per episode) | flat
     initial_choices: ClassVar[tuple[str, ...]] = ("pregrasp", "flat")
-    goal_fraction: tuple[float, float] = (0.9, 0.9)  # goal = lower + f (upper - lower), f drawn in this range
+    # goal = lower + f (upper - lower), f drawn in this range
+    goal_fraction: tuple[float, float] = dataclasses.field(default=(0.9, 0.9), metadata=rule(ge=0, le=1, ordered=True))
     goal_range: tuple[float, float] = (0.0, 0.0)  # unused here (the goal is a fraction of the joint's range)
     damping_range: tuple[float, float] = (0.005, 0.02)  # part joint damping (N m s/rad)
     friction_range: tuple[float, float] = (0.0, 0.004)  # part joint Coulomb friction (N m)
-    stiffness_range: tuple[float, float] = (0.03, 0.08)  # return spring (N m/rad)
+    stiffness_range: tuple[float, float] = dataclasses.field(default=(0.03, 0.08), metadata=RANGE)  # N m/rad: return spring
     joint_noise: float = 0.02  # rad, on the start pose
     success_threshold: float = 0.05  # rad: |theta - goal| at the episode end (each task: 8 % of its range, so
     # that pushing the part onto its stop is not a success)
@@ -58,16 +59,6 @@ class OperateConfig(KnobTurnConfig):
     fingertip_scale: float = 0.05  # m
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
-
-    def validate(self) -> "OperateConfig":
-        super().validate()
-        self.goal_fraction = check_range("task.goal_fraction", self.goal_fraction)
-        if not 0.0 <= self.goal_fraction[0] <= self.goal_fraction[1] <= 1.0:
-            raise ValueError(f"task.goal_fraction must lie in [0, 1], got {self.goal_fraction}")
-        self.stiffness_range = check_range("task.stiffness_range", self.stiffness_range)
-        if self.stiffness_range[0] < 0 or self.damping_range[0] < 0 or self.friction_range[0] < 0:
-            raise ValueError("task.stiffness_range, task.damping_range and task.friction_range must be >= 0")
-        return self
 
 
 @functools.lru_cache(maxsize=None)
