@@ -54,6 +54,18 @@ def _spaces(env) -> tuple[gym.spaces.Box, gym.spaces.Box]:
     return obs, act
 
 
+def _action_array(action, space: gym.spaces.Box) -> np.ndarray:
+    """``action`` as a float32 array of exactly ``space``'s shape, or a ``ValueError`` naming the expected
+    shape (an array of the right size but another shape, e.g. transposed, is refused, not reshaped)."""
+    try:
+        array = np.asarray(action, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be an array of shape {space.shape}, got {type(action).__name__}") from None
+    if array.shape != space.shape:
+        raise ValueError(f"action must have shape {space.shape}, got {array.shape}")
+    return array
+
+
 def _numpy(x: torch.Tensor, dtype=np.float32) -> np.ndarray:
     return x.detach().to("cpu").numpy().astype(dtype, copy=False)
 
@@ -92,8 +104,8 @@ class DexVectorEnv(VectorEnv):
     def step(self, actions):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        action = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.env.device)
-        action = action.reshape(self.num_envs, -1).to(self.env.base_env.dtype)
+        action = torch.as_tensor(_action_array(actions, self.action_space), device=self.env.device)
+        action = action.to(self.env.base_env.dtype)
         out = self.env.step(self._td.clone().set("action", action))
         nxt = out.get("next")
         obs, info = _numpy(nxt.get("observation")), self._info(nxt)
@@ -143,7 +155,7 @@ class DexGymEnv(gym.Env):
     def step(self, action):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        a = torch.as_tensor(np.asarray(action, dtype=np.float32), device=self.env.device).reshape(1, -1)
+        a = torch.as_tensor(_action_array(action, self.action_space), device=self.env.device).reshape(1, -1)
         out = self.env.step(self._td.clone().set("action", a.to(self.env.base_env.dtype)))
         nxt = out.get("next")
         self._td = nxt.exclude("reward")
