@@ -3,7 +3,7 @@ batched worlds) and :class:`DexGymEnv` (one world, a ``gymnasium.Env``).
 
 Both wrap ``make_env(task, ...)`` (non-differentiable: gymnasium hands out numpy arrays) and expose its
 flat policy ``"observation"`` (float32 ``Box``) and its action box ``[-1, 1]``. Importing this module
-(``dexmots_rl.envs`` does) registers ``dexmots/<TaskName>-v0`` for every task in ``list_tasks()``
+registers ``dexmots/<TaskName>-v0`` for every task in ``list_tasks()`` (``import dexmots_rl`` registers the shipped ones)
 (``screw_claw`` -> ``dexmots/ScrewClaw-v0``), with a ``vector_entry_point``, so
 ``gymnasium.make_vec("dexmots/ScrewClaw-v0", num_envs=N)`` builds N batched worlds in one simulator.
 
@@ -18,7 +18,7 @@ every world, there is no "reset-only" step for a subset.
 
 Example:
     >>> import gymnasium as gym
-    >>> import dexmots_rl.envs.gym  # noqa: F401  (registers the ids; importing dexmots_rl.envs does too)
+    >>> import dexmots_rl  # noqa: F401  (registers the ids)
     >>> envs = gym.make_vec("dexmots/ScrewClaw-v0", num_envs=3)
     >>> obs, info = envs.reset(seed=0)
     >>> obs.shape, envs.single_action_space.shape
@@ -38,12 +38,9 @@ import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..gym_ids import gym_id, register_gym_ids
+
 __all__ = ["DexGymEnv", "DexVectorEnv", "gym_id", "register_gym_envs"]
-
-
-def gym_id(task: str) -> str:
-    """The gymnasium id of a task: ``screw_claw`` -> ``dexmots/ScrewClaw-v0``."""
-    return "dexmots/" + "".join(part.capitalize() for part in task.split("_")) + "-v0"
 
 
 def _spaces(env) -> tuple[gym.spaces.Box, gym.spaces.Box]:
@@ -167,14 +164,7 @@ def register_gym_envs() -> list[str]:
     """Register ``dexmots/<Task>-v0`` (single and vector entry points) for every registered task."""
     from .registry import list_tasks
 
-    ids = []
-    for task in list_tasks():
-        env_id = gym_id(task)
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=f"{__name__}:DexGymEnv",
-                         vector_entry_point=f"{__name__}:DexVectorEnv", kwargs={"task": task})
-        ids.append(env_id)
-    return ids
+    return register_gym_ids(list_tasks())
 
 
 register_gym_envs()
