@@ -32,8 +32,8 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm.auto import tqdm
 
+from ..progress import progress_bar
 from .budget import RunBudget
 from .common import RunWriter, batch_metrics, deployable_policy, make_train_env, mlp, sync_obs_norm, \
     tanh_gaussian_actor
@@ -98,7 +98,7 @@ def train(cfg: DictConfig, variant: PPOVariant = PLAIN_PPO) -> dict:
                           device=cfg.device, exploration_type=ExplorationType.RANDOM,
                           auto_register_policy_transforms=False)
     counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
-    bar = tqdm(total=iterations, desc=f"{a.name} {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
+    bar = progress_bar(total=iterations, desc=f"{a.name} {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
     budget, stopped_by = RunBudget.from_config(cfg), None
     t_start = time.perf_counter()
     for data in collector:

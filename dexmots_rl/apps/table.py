@@ -25,7 +25,7 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    ``eval.curve_episodes`` episodes each).
 4. Outputs in ``sweep_dir``: ``runs.csv`` (one row per run), ``table.md`` (Table 2's layout and the time to
    90 % success: :mod:`dexmots_rl.viz.table_writer`), ``curves_<task>.png`` (Fig. 3c) and
-   ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A tqdm bar on stderr counts
+   ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A progress bar on stderr (at a terminal) counts
    finished runs; the table is printed at the end.
 
 The launch uses hydra 1.3's config loader and launcher API (``hydra._internal``: the plugins' own entry
@@ -130,18 +130,17 @@ def _check_composes(loader, master, runs) -> None:
 
 
 class _SweepProgress:
-    """A tqdm bar of finished runs, refreshed from their run directories by a polling thread (the launchers
+    """A progress bar of finished runs, refreshed from their run directories by a polling thread (the launchers
     block until the whole sweep is done)."""
 
     def __init__(self, pending, done: int, total: int, enabled: bool):
-        from tqdm.auto import tqdm
-
+        from ..progress import progress_bar
         from .table_spec import finished_metrics
 
         self._finished = finished_metrics
         self.pending, self.seen = list(pending), 0
-        self.bar = tqdm(total=total, initial=done, desc="dexmots-table", unit="run", disable=not enabled,
-                        file=sys.stderr, dynamic_ncols=True)
+        self.bar = progress_bar(total=total, initial=done, desc="dexmots-table", unit="run", disable=not enabled,
+                               file=sys.stderr, dynamic_ncols=True)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._poll, daemon=True)
 
