@@ -154,21 +154,13 @@ def _check(cfg, fields: dict, prefix: str) -> None:
             check_value(f"{prefix}{key}", value, annotation, key_rule)
 
 
-def check_run_device(device) -> None:
-    """A ``ValueError`` naming ``device`` unless it is ``cpu`` or a CUDA device this machine has."""
-    import torch
+def _check_device(device) -> None:
+    from ..sim.simulator import check_device
 
     try:
-        dev = torch.device(str(device))
-    except RuntimeError:
+        check_device(str(device))
+    except RuntimeError:  # torch's "Expected one of cpu, cuda, ... device type"
         raise ValueError(f"device must be 'cpu' or 'cuda[:index]', got {device!r}") from None
-    if dev.type == "cuda":
-        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
-        if (dev.index or 0) >= count:
-            raise ValueError(f"device {str(device)!r} is not available: this machine has {count} CUDA device(s); "
-                             f"use device=cpu")
-    elif dev.type != "cpu":
-        raise ValueError(f"device must be 'cpu' or 'cuda[:index]', got {device!r}")
 
 
 def validate_run_config(cfg) -> None:
@@ -179,7 +171,7 @@ def validate_run_config(cfg) -> None:
         _check(cfg, ALGO_FIELDS, "algo.")
     _check(cfg, RUN_FIELDS, "")
     if _get(cfg, "device") is not _MISSING:
-        check_run_device(_get(cfg, "device"))
+        _check_device(_get(cfg, "device"))
     task = _get(cfg, "task")
     if task is not _MISSING and task is not None and "name" in task:  # what make_env will check, checked now
         from ..envs.config import config_from_dict

@@ -15,6 +15,7 @@ import time
 import torch
 
 from ..envs import ScriptedPolicy, make_env
+from ._cli import errors_as_one_line
 
 __all__ = ["run", "main"]
 
@@ -22,7 +23,9 @@ log = logging.getLogger(__name__)
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(argv)
+    """Console entry point: bad input (an unknown task, a GPU this machine lacks) and a full disk are one line."""
+    with errors_as_one_line("dexmots-rollout"):
+        run(argv)
 
 
 def run(argv: list[str] | None = None) -> dict:
