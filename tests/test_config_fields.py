@@ -79,7 +79,8 @@ def test_every_task_field_rejects_bad_values_naming_the_field(task, field, value
 @pytest.mark.parametrize("task", list_tasks())
 def test_every_task_default_config_is_valid(task):
     cfg = task_config(task)
-    assert task_config(task, **{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "name"}) == cfg
+    same = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "name"}
+    assert task_config(task, **same) == cfg
 
 
 @pytest.mark.parametrize("field, value", [

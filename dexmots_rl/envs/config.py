@@ -27,8 +27,8 @@ from .fields import rule, validate_fields
 from .rewards import RewardCoefficients
 from .transforms import GOAL_MODES
 
-__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict", "override_config",
-           "rule", "saved_config_defaults"]
+__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict",
+           "override_config", "rule", "saved_config_defaults"]
 
 
 def check_number(name: str, value, low: float = 0.0, strict: bool = True) -> None:

@@ -2,8 +2,8 @@
 batched worlds) and :class:`DexGymEnv` (one world, a ``gymnasium.Env``).
 
 Both wrap ``make_env(task, ...)`` (non-differentiable: gymnasium hands out numpy arrays) and expose its
-flat policy ``"observation"`` (float32 ``Box``) and its action box ``[-1, 1]``. Importing this module
-registers ``dexmots/<TaskName>-v0`` for every task in ``list_tasks()`` (``import dexmots_rl`` registers the shipped ones)
+flat policy ``"observation"`` (float32 ``Box``) and its action box ``[-1, 1]``. ``import dexmots_rl``
+registers ``dexmots/<TaskName>-v0`` for every shipped task, importing this module for every task in ``list_tasks()``
 (``screw_claw`` -> ``dexmots/ScrewClaw-v0``), with a ``vector_entry_point``, so
 ``gymnasium.make_vec("dexmots/ScrewClaw-v0", num_envs=N)`` builds N batched worlds in one simulator.
 

@@ -48,7 +48,8 @@ class OperateConfig(KnobTurnConfig):
     goal_range: tuple[float, float] = (0.0, 0.0)  # unused here (the goal is a fraction of the joint's range)
     damping_range: tuple[float, float] = (0.005, 0.02)  # part joint damping (N m s/rad)
     friction_range: tuple[float, float] = (0.0, 0.004)  # part joint Coulomb friction (N m)
-    stiffness_range: tuple[float, float] = dataclasses.field(default=(0.03, 0.08), metadata=RANGE)  # N m/rad: return spring
+    # return spring (N m/rad)
+    stiffness_range: tuple[float, float] = dataclasses.field(default=(0.03, 0.08), metadata=RANGE)
     joint_noise: float = 0.02  # rad, on the start pose
     success_threshold: float = 0.05  # rad: |theta - goal| at the episode end (each task: 8 % of its range, so
     # that pushing the part onto its stop is not a success)
