@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import doctest
+import re
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from gymnasium.utils.env_checker import check_env
 
 import dexmots_rl.envs.gym as dex_gym
@@ -60,3 +62,18 @@ def test_single_world_env_passes_gymnasiums_checker():
 
 def test_module_doctest():
     assert doctest.testmod(dex_gym).failed == 0
+
+
+def test_wrongly_shaped_actions_are_refused_naming_the_expected_shape():
+    envs = dex_gym.DexVectorEnv("screw_claw", num_envs=4, seed=0)
+    envs.reset(seed=0)
+    good = np.zeros(envs.action_space.shape, np.float32)  # (4, action dim)
+    for bad in (good.T, good.reshape(-1), good[None]):  # the same element count, another shape
+        with pytest.raises(ValueError, match=re.escape(str(envs.action_space.shape))):
+            envs.step(bad)
+    envs.step(good)
+    single = dex_gym.DexGymEnv("screw_claw", seed=0)
+    single.reset(seed=0)
+    with pytest.raises(ValueError, match=re.escape(str(single.action_space.shape))):
+        single.step(np.zeros((1, *single.action_space.shape), np.float32))
+    single.step(np.zeros(single.action_space.shape, np.float32))

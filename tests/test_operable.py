@@ -71,7 +71,7 @@ def test_episodes_start_from_the_pregrasps():
 def test_bad_pregrasp_file_fails_naming_the_field(tmp_path):
     path = tmp_path / "p.json"
     path.write_text(json.dumps({"format": "dexmots-pregrasps-v1", "poses": [[0.0] * 3]}))
-    with pytest.raises(PregraspError, match="'poses'"):
+    with pytest.raises(PregraspError, match=r"poses\[0\] must be a list of 16"):
         load_pregrasps(path, 16)
     path.write_text("{")
     with pytest.raises(PregraspError, match="not a pre-grasp file"):

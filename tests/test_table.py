@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from dexmots_rl.apps import table
 from dexmots_rl.apps.table_spec import SweepSpecError
@@ -57,9 +58,12 @@ def _table_cfg(tmp_path, *overrides):
                                             "seeds=[0,1]", "action_ablation.tasks=[]", *overrides])
 
 
-def _fake_finished(run_dir: Path, task: str, algo: str, success: float, curve=(0.3, 0.95)) -> None:
-    """A run directory as a trainer leaves it: training rows, periodic evaluations, the final metrics.json."""
+def _fake_finished(run_dir: Path, task: str, algo: str, success: float, curve=(0.3, 0.95), config=None) -> None:
+    """A run directory as a trainer leaves it: its ``config`` (the composed one it was given), training rows,
+    periodic evaluations, the final metrics.json."""
     run_dir.mkdir(parents=True, exist_ok=True)
+    if config is not None:
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(config, resolve=True))
     rows = []
     for i, s in enumerate(curve, start=1):
         rows.append({"iteration": i, "env_steps": 1000 * i, "wall_clock_s": 10.0 * i, "reward": 0.1})
@@ -72,20 +76,20 @@ def _fake_finished(run_dir: Path, task: str, algo: str, success: float, curve=(0
 
 
 def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch):
-    runs = tmp_path / "sweep" / "runs" / "screw_claw"
-    _fake_finished(runs / "dexmots" / "vi" / "seed0", "screw_claw", "ahac", 0.9)
-    _fake_finished(runs / "ppo" / "vi" / "seed1", "screw_claw", "ppo", 0.4)
-    (runs / "ppo" / "vi" / "seed0").mkdir(parents=True)
-    (runs / "ppo" / "vi" / "seed0" / "metrics.json").write_text('{"task": "screw_cl')  # torn: not finished
     launched = []
 
     def fake_train_job(cfg):
         launched.append((cfg.task.name, cfg.algo.name, cfg.seed, cfg.task.action, cfg.torch_threads))
         assert cfg.overwrite and cfg.budget.wall_clock_s == 150  # the preset's budget, for every run
-        _fake_finished(Path(cfg.run_dir), cfg.task.name, cfg.algo.name, 0.5)
+        _fake_finished(Path(cfg.run_dir), cfg.task.name, cfg.algo.name, 0.5, config=cfg)
         return {}
 
     monkeypatch.setattr(table, "train_job", fake_train_job)
+    assert table.run_table(_table_cfg(tmp_path))["launched"] == 4
+    runs = tmp_path / "sweep" / "runs" / "screw_claw"
+    (runs / "dexmots" / "vi" / "seed1" / "metrics.json").unlink()  # interrupted before its final evaluation
+    (runs / "ppo" / "vi" / "seed0" / "metrics.json").write_text('{"task": "screw_cl')  # torn: not finished
+    launched.clear()
     result = table.run_table(_table_cfg(tmp_path))
     assert sorted(launched) == [("screw_claw", "ahac", 1, "vi", 1), ("screw_claw", "ppo", 0, "vi", 1)]
     assert (result["runs"], result["skipped"], result["launched"], result["unfinished"]) == (4, 2, 2, 0)
@@ -120,16 +124,20 @@ def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, mes
     assert not (tmp_path / "sweep" / "runs").exists()
 
 
-def test_the_figures_and_table_come_from_the_run_directories(tmp_path, monkeypatch):
-    runs = tmp_path / "sweep" / "runs" / "screw_claw"
-    for seed, (method, algo) in enumerate([("dexmots", "ahac"), ("ppo", "ppo")] * 2):
-        seed //= 2
-        for action in ("vi", "torque"):
-            _fake_finished(runs / method / action / f"seed{seed}", "screw_claw", algo, 0.5 + 0.1 * seed,
-                           curve=(0.1 * seed, 0.5, 0.8 + 0.1 * seed))
+def _finished_sweep(tmp_path, monkeypatch, finish, *overrides) -> None:
+    """A sweep whose every run ``finish(cfg)`` left finished (as a trainer would, config.yaml included)."""
+    monkeypatch.setattr(table, "train_job", lambda cfg: finish(cfg) or {})
+    table.run_table(_table_cfg(tmp_path, *overrides))
     monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("everything is finished"))
-    result = table.run_table(_table_cfg(tmp_path, "action_ablation.tasks=[screw_claw]",
-                                        "action_ablation.methods=[dexmots,ppo]", "action_ablation.actions=[torque,vi]"))
+
+
+def test_the_figures_and_table_come_from_the_run_directories(tmp_path, monkeypatch):
+    ablation = ("action_ablation.tasks=[screw_claw]", "action_ablation.methods=[dexmots,ppo]",
+                "action_ablation.actions=[torque,vi]")
+    _finished_sweep(tmp_path, monkeypatch, lambda cfg: _fake_finished(
+        Path(cfg.run_dir), "screw_claw", cfg.algo.name, 0.5 + 0.1 * cfg.seed,
+        curve=(0.1 * cfg.seed, 0.5, 0.8 + 0.1 * cfg.seed), config=cfg), *ablation)
+    result = table.run_table(_table_cfg(tmp_path, *ablation))
     sweep = tmp_path / "sweep"
     for png in ("curves_screw_claw.png", "action_space_screw_claw.png"):
         assert (sweep / png).stat().st_size > 10_000 and (sweep / png).read_bytes()[:4] == b"\x89PNG"
@@ -162,15 +170,21 @@ def test_the_time_budget_stops_a_trainer_with_a_final_evaluation(tmp_path):
 
 
 def test_a_tiny_real_sweep_end_to_end(tmp_path):
-    cfg = _table_cfg(tmp_path, "methods=[ppo]", "seeds=[0]", "budget.wall_clock_s=null",
-                     'run_overrides=["task.num_envs=2","task.max_episode_steps=6","eval.episodes=2","eval.every=1",'
-                     '"eval.curve_episodes=2"]',
-                     'method_overrides.ppo=["algo.total_frames=24","algo.frames_per_batch=12","algo.minibatch_size=6",'
-                     '"algo.hidden=[8]"]')
-    result = table.run_table(cfg)
+    spec = ("methods=[ppo]", "seeds=[0]", "budget.wall_clock_s=null",
+            'run_overrides=["task.num_envs=2","task.max_episode_steps=6","eval.episodes=2","eval.every=1",'
+            '"eval.curve_episodes=2"]')
+    smoke = ('method_overrides.ppo=["algo.total_frames=24","algo.frames_per_batch=12","algo.minibatch_size=6",'
+             '"algo.hidden=[8]"]')
+    result = table.run_table(_table_cfg(tmp_path, *spec, smoke))
     assert (result["launched"], result["unfinished"]) == (1, 0)
     row = read_csv(tmp_path / "sweep" / "runs.csv")[0]
     assert row["status"] == "finished" and row["env_steps"] == 24 and row["stopped_by"] == "schedule"
+    assert table.run_table(_table_cfg(tmp_path, *spec, smoke))["launched"] == 0  # the same spec: finished
+    # a longer run in the same sweep directory does not reuse the 2-iteration one: the real trainer's config.yaml
+    longer = smoke.replace("total_frames=24", "total_frames=36")
+    result = table.run_table(_table_cfg(tmp_path, *spec, longer))
+    assert (result["launched"], result["skipped"], result["unfinished"]) == (1, 0, 0)
+    assert read_csv(tmp_path / "sweep" / "runs.csv")[0]["env_steps"] == 36
 
 
 def test_learning_rate_schedules_end_with_the_budget():
@@ -184,18 +198,20 @@ def test_learning_rate_schedules_end_with_the_budget():
 
 
 def test_a_planner_run_shows_no_training_and_no_budget_warning(tmp_path, monkeypatch):
-    runs = tmp_path / "sweep" / "runs" / "screw_claw"
-    for seed in (0, 1):
-        _fake_finished(runs / "dexmots" / "vi" / f"seed{seed}", "screw_claw", "ahac", 0.9)
-        mpc = runs / "mpc" / "vi" / f"seed{seed}"  # as algo=mpc leaves it: one evaluation row, no training
-        mpc.mkdir(parents=True)
+    def finish(cfg):
+        if cfg.algo.name != "mpc":
+            return _fake_finished(Path(cfg.run_dir), "screw_claw", "ahac", 0.9, config=cfg)
+        mpc = Path(cfg.run_dir)  # as algo=mpc leaves it: one evaluation row, no training
+        mpc.mkdir(parents=True, exist_ok=True)
+        (mpc / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
         (mpc / "metrics.jsonl").write_text(json.dumps({"iteration": 0, "success_rate": 0.95, "env_steps": 10000,
                                                        "wall_clock_s": 38.0}) + "\n")
         (mpc / "metrics.json").write_text(json.dumps({
             "task": "screw_claw", "algo": "mpc", "success_rate": 0.95, "episodes": 100, "env_steps": 10000,
             "iterations": 0, "train_wall_clock_s": 0.0,
-            "budget": {} if seed == 0 else {"wall_clock_s": None, "env_steps": None, "stopped_by": "no_training"}}))
-    monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("everything is finished"))
+            "budget": {} if cfg.seed == 0 else {"wall_clock_s": None, "env_steps": None, "stopped_by": "no_training"}}))
+
+    _finished_sweep(tmp_path, monkeypatch, finish, "methods=[dexmots,mpc]")
     result = table.run_table(_table_cfg(tmp_path, "methods=[dexmots,mpc]"))
     assert "| Screw-top (Claw) | 20 s (2/2) | no training |" in result["table"]  # not "0 s (2/2)"
     assert "different budgets" not in result["table"] and "no_training (2)" in result["table"]

@@ -27,8 +27,8 @@ from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, 
 from torch import nn
 from torchrl.envs import ClipTransform, RewardSum, VecNorm
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
-from tqdm.auto import tqdm
 
+from ..progress import progress_bar
 from ..envs import make_env
 from .budget import RunBudget
 from .rundir import RunDirectory
@@ -179,7 +179,7 @@ class CollectorLoop:
             self.counters.update(run.start["counters"])
         self.stop_at = min(iterations, self.cfg.stop_after) if self.cfg.stop_after else iterations
         self.budget, self.stopped_by, self.ended = RunBudget.from_config(self.cfg), None, False
-        self.bar = tqdm(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
+        self.bar = progress_bar(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
                         desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
         self._t_start = time.perf_counter() - self.counters["wall_clock_s"]
 

@@ -40,8 +40,8 @@ import time
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from tqdm.auto import tqdm
 
+from ..progress import progress_bar
 from ..envs import make_env
 from ..envs.config import check_number
 from ..envs.mirror import SignedPermutation, action_reflection, reflect_mirrored
@@ -330,7 +330,7 @@ def _plan(run: RunDirectory) -> dict:
     log.info("mpc %s: %d episodes, %d candidates x %d steps (+%d refinement steps): %d sim steps (+%d backward) "
              "per control step and world", cfg.task.name, episodes, a.candidates, a.horizon, a.refine_steps,
              budget["sim_steps_per_control_step"], budget["grad_steps_per_control_step"])
-    planner.progress = tqdm(total=steps, desc=f"mpc {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
+    planner.progress = progress_bar(total=steps, desc=f"mpc {cfg.task.name}", disable=not cfg.progress, file=sys.stderr)
     start = time.perf_counter()
     ev = evaluate_policy(planner, cfg.task, episodes, cfg.eval.seed, cfg.device, **run.record_options(live=False))
     wall = time.perf_counter() - start

@@ -33,8 +33,8 @@ from omegaconf import DictConfig
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
-from tqdm.auto import tqdm
 
+from ..progress import progress_bar
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
 from .best_policy import BestPolicy
@@ -141,8 +141,8 @@ def _train(run: RunDirectory, dist, stop) -> dict:
         torch.set_rng_state(start["rng"]["torch"])
         env.base_env.generator.set_state(start["rng"]["env"])
     iterations = cfg.algo.iterations
-    bar = tqdm(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
-               disable=not (cfg.progress and dist.is_main), file=sys.stderr)
+    bar = progress_bar(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
+                       disable=not (cfg.progress and dist.is_main), file=sys.stderr)
     t_start = time.perf_counter() - counters["wall_clock_s"]
     stop_at = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
     budget, stopped_by = RunBudget.from_config(cfg), None

@@ -1,5 +1,9 @@
-"""Up-front checks of a training run's config: every numeric field of ``algo`` and the run keys, each
-error naming the key, before any env is built or any file is written.
+"""Up-front checks of a training run's config: every key of every algorithm's ``algo`` section and the run
+keys, each error naming the key (``algo.<key>``), before any env is built or any file is written.
+
+Each key has a type annotation and a rule (:func:`dexmots_rl.envs.fields.rule`), checked by the same
+:func:`~dexmots_rl.envs.fields.check_value` that checks every task config field: type, finiteness, range.
+A key in ``configs/algo/*.yaml`` without an entry in :data:`ALGO_FIELDS` fails the test suite.
 
 Example:
     >>> from omegaconf import OmegaConf
@@ -8,75 +12,120 @@ Example:
     ...     validate_run_config(cfg)
     ... except ValueError as e:
     ...     print(e)
-    algo.gamma must be in (0, 1], got 2.0
+    algo.gamma must be a finite number > 0 and <= 1, got 2.0
 """
 
 from __future__ import annotations
 
-import math
-from typing import Any
+from typing import Any, Optional
 
-__all__ = ["validate_run_config"]
+from ..envs.fields import check_value, rule
 
+__all__ = ["ALGO_FIELDS", "RUN_FIELDS", "validate_run_config"]
 
-def _number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+_POSITIVE = rule(gt=0)
+_NON_NEGATIVE = rule(ge=0)
+_SHARE = rule(ge=0, le=1)
+_WIDTHS = (tuple[int, ...], _POSITIVE)  # MLP hidden-layer widths
+_ACTIVATIONS = rule(choices=("tanh", "relu", "elu"))
 
-
-def _integer(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-# key -> (check, what a valid value is); a key absent from the config is skipped (e.g. AHAC-only keys)
-_ALGO_RULES = {
-    "iterations": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "horizon": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "gamma": (lambda v: _number(v) and 0 < v <= 1, "in (0, 1]"),
-    "lmbda": (lambda v: _number(v) and 0 <= v <= 1, "in [0, 1]"),
-    "actor_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "critic_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "betas": (lambda v: len(v) == 2 and all(_number(b) and 0 <= b < 1 for b in v), "two numbers in [0, 1)"),
-    "lr_decay": (lambda v: v in ("linear", "constant"), "'linear' or 'constant'"),
-    "critic_iterations": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "critic_minibatches": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "target_alpha": (lambda v: _number(v) and 0 <= v <= 1, "in [0, 1]"),
-    "grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "skip_grad_norm": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "hidden": (lambda v: len(v) > 0 and all(_integer(h) and h > 0 for h in v), "a non-empty list of positive integers"),
-    "critic_hidden": (lambda v: v is None or (len(v) > 0 and all(_integer(h) and h > 0 for h in v)),
-                      "null or a non-empty list of positive integers"),
-    "layer_norm": (lambda v: isinstance(v, bool), "true or false"),
-    "init_log_std": (lambda v: _number(v) and -20 <= v <= 5, "a finite number in [-20, 5]"),
-    "adjoint_clip": (lambda v: v is None or (_number(v) and v >= 1), "null or a number >= 1"),
-    "horizon_min": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "horizon_max": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "contact_threshold": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "dual_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "truncate": (lambda v: isinstance(v, bool), "true or false"),
-    "keep_best": (lambda v: isinstance(v, bool), "true or false"),
-    "best_window": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "rollback_drop": (lambda v: v is None or (_number(v) and 0 < v <= 1), "null or a number in (0, 1]"),
-    "smooth_temporal": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
-    "smooth_spatial": (lambda v: _number(v) and v >= 0, "a non-negative finite number"),
-    "smooth_sigma": (lambda v: _number(v) and v > 0, "a positive finite number"),
-    "smooth_clip_target": (lambda v: v is None or (_number(v) and 0 <= v < 1), "null or a share in [0, 1)"),
-    "smooth_dual_lr": (lambda v: _number(v) and v > 0, "a positive finite number"),
+#: key -> (type, rule) of every algorithm's ``algo`` keys; a key absent from a config is skipped (e.g. AHAC-only
+#: keys under SHAC); keys shared by several methods mean the same everywhere
+ALGO_FIELDS: dict[str, tuple[Any, Optional[dict]]] = {
+    "name": (str, None),
+    # SHAC / AHAC
+    "iterations": (int, _POSITIVE),
+    "horizon": (int, _POSITIVE),
+    "gamma": (float, rule(gt=0, le=1)),
+    "lmbda": (float, _SHARE),
+    "actor_lr": (float, _POSITIVE),
+    "critic_lr": (float, _POSITIVE),
+    "betas": (tuple[float, float], rule(ge=0, lt=1)),
+    "lr_decay": (str, rule(choices=("linear", "constant"))),
+    "critic_iterations": (int, _POSITIVE),
+    "critic_minibatches": (int, _POSITIVE),
+    "target_alpha": (float, _SHARE),
+    "grad_norm": (float, _POSITIVE),
+    "skip_grad_norm": (float, _POSITIVE),
+    "hidden": _WIDTHS,
+    "critic_hidden": (Optional[tuple[int, ...]], _POSITIVE),
+    "layer_norm": (bool, None),
+    "init_log_std": (float, rule(ge=-20, le=5)),
+    "adjoint_clip": (Optional[float], rule(ge=1)),
+    "horizon_min": (int, _POSITIVE),
+    "horizon_max": (int, _POSITIVE),
+    "contact_threshold": (float, _POSITIVE),
+    "dual_lr": (float, _POSITIVE),
+    "truncate": (bool, None),
+    "keep_best": (bool, None),
+    "best_window": (int, _POSITIVE),
+    "rollback_drop": (Optional[float], rule(gt=0, le=1)),
+    "smooth_temporal": (float, _NON_NEGATIVE),
+    "smooth_spatial": (float, _NON_NEGATIVE),
+    "smooth_sigma": (float, _POSITIVE),
+    "smooth_clip_target": (Optional[float], rule(ge=0, lt=1)),
+    "smooth_dual_lr": (float, _POSITIVE),
+    # PPO / PGDM / SAC
+    "total_frames": (float, rule(ge=1)),
+    "frames_per_batch": (int, _POSITIVE),
+    "epochs": (int, _POSITIVE),
+    "minibatch_size": (int, _POSITIVE),
+    "lr": (float, _POSITIVE),
+    "anneal_lr": (bool, None),
+    "max_grad_norm": (float, _POSITIVE),
+    "reward_scale": (float, _POSITIVE),
+    "clip_epsilon": (float, _POSITIVE),
+    "entropy_coeff": (float, _NON_NEGATIVE),
+    "critic_coeff": (float, _POSITIVE),
+    "loss_critic_type": (str, rule(choices=("l2", "smooth_l1", "l1"))),
+    "normalize_advantage": (bool, None),
+    "activation": (str, _ACTIVATIONS),
+    "obs_norm_decay": (float, rule(gt=0, le=1)),
+    "obs_clip": (float, _POSITIVE),
+    "init_random_frames": (float, _NON_NEGATIVE),
+    "utd_ratio": (float, _POSITIVE),
+    "batch_size": (int, _POSITIVE),
+    "buffer_size": (float, rule(ge=1)),
+    "tau": (float, rule(gt=0, le=1)),
+    "alpha_lr": (float, _POSITIVE),
+    "alpha_init": (float, _POSITIVE),
+    # PGDM's TCDM observation and reward
+    "target_offsets": (tuple[int, ...], _POSITIVE),
+    "time_frequencies": (tuple[float, ...], _POSITIVE),
+    "tracking_scale": (float, _POSITIVE),
+    "tracking_sharpness": (float, _POSITIVE),
+    "rotation_weight": (float, _NON_NEGATIVE),
+    "lift_bonus": (float, _NON_NEGATIVE),
+    "lift_height": (float, _NON_NEGATIVE),
+    "termination_distance": (float, _POSITIVE),
+    "warm_start": (bool, None),
+    # MPC
+    "candidates": (int, _POSITIVE),
+    "knots": (int, _POSITIVE),
+    "interpolation": (str, rule(choices=("zero", "linear"))),
+    "noise": (float, _NON_NEGATIVE),
+    "initial_plan": (str, rule(choices=("hold", "zero"))),
+    "refine_steps": (int, _NON_NEGATIVE),
+    "refine_lr": (float, _POSITIVE),
+    "refine_optimizer": (str, rule(choices=("adam", "sgd"))),
 }
 
-_RUN_RULES = {
-    "seed": (lambda v: _integer(v) and v >= 0, "a non-negative integer"),
-    "checkpoint_every": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "stop_after": (lambda v: v is None or (_integer(v) and v > 0), "null or a positive integer"),
-    "logger": (lambda v: v in ("csv", "tensorboard"), "'csv' or 'tensorboard'"),
-    "progress": (lambda v: isinstance(v, bool), "true or false"),
-    "overwrite": (lambda v: isinstance(v, bool), "true or false"),
-    "eval.episodes": (lambda v: _integer(v) and v > 0, "a positive integer"),
-    "eval.every": (lambda v: _integer(v) and v >= 0, "a non-negative integer (0: only at the end)"),
-    "eval.curve_episodes": (lambda v: v is None or (_integer(v) and v > 0), "null or a positive integer"),
-    "eval.seed": (lambda v: _integer(v), "an integer"),
-    "budget.wall_clock_s": (lambda v: v is None or (_number(v) and v > 0), "null or a positive number of seconds"),
-    "budget.env_steps": (lambda v: v is None or (_integer(v) and v > 0), "null or a positive integer"),
-    "eval.record": (lambda v: isinstance(v, bool), "true or false"),
+#: dotted run key -> (type, rule)
+RUN_FIELDS: dict[str, tuple[Any, Optional[dict]]] = {
+    "seed": (int, _NON_NEGATIVE),
+    "checkpoint_every": (int, _POSITIVE),
+    "stop_after": (Optional[int], _POSITIVE),
+    "logger": (str, rule(choices=("csv", "tensorboard"))),
+    "progress": (bool, None),
+    "overwrite": (bool, None),
+    "torch_threads": (Optional[int], _POSITIVE),
+    "eval.episodes": (int, _POSITIVE),
+    "eval.every": (int, _NON_NEGATIVE),
+    "eval.curve_episodes": (Optional[int], _POSITIVE),
+    "eval.seed": (int, rule()),
+    "eval.record": (bool, None),
+    "budget.wall_clock_s": (Optional[float], _POSITIVE),
+    "budget.env_steps": (Optional[int], _POSITIVE),
 }
 
 
@@ -98,25 +147,37 @@ def _plain(v):
     return OmegaConf.to_container(v, resolve=True) if isinstance(v, (DictConfig, ListConfig)) else v
 
 
-def _check(cfg, rules: dict, prefix: str) -> None:
-    for key, (ok, what) in rules.items():
+def _check(cfg, fields: dict, prefix: str) -> None:
+    for key, (annotation, key_rule) in fields.items():
         value = _plain(_get(cfg, f"{prefix}{key}"))
-        if value is _MISSING:
-            continue
-        try:
-            good = ok(value)
-        except TypeError:
-            good = False
-        if not good:
-            raise ValueError(f"{prefix}{key} must be {what}, got {value!r}")
+        if value is not _MISSING:
+            check_value(f"{prefix}{key}", value, annotation, key_rule)
+
+
+def _check_device(device) -> None:
+    from ..sim.simulator import check_device
+
+    try:
+        check_device(str(device))
+    except RuntimeError:  # torch's "Expected one of cpu, cuda, ... device type"
+        raise ValueError(f"device must be 'cpu' or 'cuda[:index]', got {device!r}") from None
 
 
 def validate_run_config(cfg) -> None:
     """``ValueError`` naming the first bad key of ``cfg``'s ``algo`` section or run keys (a DictConfig or
-    mapping, as composed by ``dexmots-train``). Cross-field rules: AHAC's horizon bounds."""
+    mapping, as composed by ``dexmots-train``), a bad ``task.<field>`` (the task's typed config) or a device this
+    machine lacks. Cross-field rules: AHAC's horizon bounds."""
     if _get(cfg, "algo") is not _MISSING:
-        _check(cfg, _ALGO_RULES, "algo.")
-    _check(cfg, _RUN_RULES, "")
+        _check(cfg, ALGO_FIELDS, "algo.")
+    _check(cfg, RUN_FIELDS, "")
+    if _get(cfg, "device") is not _MISSING:
+        _check_device(_get(cfg, "device"))
+    task = _get(cfg, "task")
+    if task is not _MISSING and task is not None and "name" in task:  # what make_env will check, checked now
+        from ..envs.config import config_from_dict
+        from ..envs.registry import task_entry
+
+        config_from_dict(task_entry(task["name"]).config_class, _plain(task))
     algo = _get(cfg, "algo")
     if algo is not _MISSING and _get(cfg, "algo.name") == "ahac":
         lo, hi, h0 = (_get(cfg, f"algo.{k}") for k in ("horizon_min", "horizon_max", "horizon"))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import errno
 from contextlib import contextmanager
 
-__all__ = ["os_errors_as_one_line"]
+__all__ = ["errors_as_one_line", "os_errors_as_one_line"]
 
 
 @contextmanager
@@ -19,3 +19,14 @@ def os_errors_as_one_line(prog: str):
         if e.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
             raise SystemExit(f"{prog}: no space left on device{where}; free some space and rerun") from None
         raise SystemExit(f"{prog}: {e.strerror or e}{where}") from None
+
+
+@contextmanager
+def errors_as_one_line(prog: str, *errors: type[BaseException]):
+    """:func:`os_errors_as_one_line`, and ``errors`` (bad input: ``ValueError`` by default) as
+    ``SystemExit("<prog>: <message>")``."""
+    try:
+        with os_errors_as_one_line(prog):
+            yield
+    except errors or (ValueError,) as e:
+        raise SystemExit(f"{prog}: {e}") from None

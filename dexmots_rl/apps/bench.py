@@ -20,6 +20,7 @@ import logging
 import statistics
 import sys
 
+from ._cli import errors_as_one_line
 from .bench_setup import bench_tasks
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
@@ -182,7 +183,12 @@ def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: print the result as JSON (``--json``) or as a table."""
     args = build_parser().parse_args(argv)
-    result = _execute(args)
+    with errors_as_one_line("dexmots-bench"):  # bad input (a GPU this machine lacks) and a full disk: one line
+        if getattr(args, "device", "cpu") != "cpu":
+            from ..sim.simulator import check_device
+
+            check_device(args.device)  # before any work or log line
+        result = _execute(args)
     print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
 
 

@@ -1,14 +1,16 @@
 """``dexmots-record``: record episodes of a task to an MCAP file (Foxglove, ``dexmots-view``).
 
-    dexmots-record task=screw_claw episodes=2 out=run.mcap                 # scripted policy, 4 worlds
+    dexmots-record task=screw_claw episodes=2 out=run.mcap                 # scripted controller, 4 worlds
+    dexmots-record task=stapler out=stapler.mcap                           # random actions (no controller)
     dexmots-record task=screw_claw policy=random num_envs=8 steps=50 out=random.mcap
     dexmots-record checkpoint=runs/screw_claw_ahac_seed0 episodes=3 out=trained.mcap
     dexmots-record task=screw_claw episodes=20 live=true out=live.mcap     # + dexmots-view live.mcap --live
 
 Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),
 ``out`` (run.mcap), ``num_envs`` (4), ``steps`` (100; with a checkpoint, the task's episode length),
-``seed`` (0), ``device`` (cpu), ``policy`` (``scripted`` — the grasp-and-twist controller of
-the task's, in torque space — or ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
+``seed`` (0), ``device`` (cpu), ``policy`` (``auto``: the task's scripted controller where it has one —
+screw_claw's grasp-and-twist, in torque space — and uniform random actions elsewhere; ``scripted``; or
+``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
 or run directory: its task config builds the env and its actor acts deterministically) and ``live``
 (rewrite the file after every episode). Every episode is a reset followed by ``steps`` steps in every
 world; the summary is printed as one JSON line.
@@ -33,14 +35,14 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..envs import ScriptedPolicy, make_env
+from ._policies import POLICIES, choose_policy
 
 __all__ = ["DEFAULTS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
 
 log = logging.getLogger(__name__)
 
 DEFAULTS = {"task": "screw_claw", "episodes": 1, "out": "run.mcap", "num_envs": 4, "steps": None, "seed": 0,
-            "device": "cpu", "policy": "scripted", "checkpoint": None, "live": False}
-POLICIES = ("scripted", "random")
+            "device": "cpu", "policy": "auto", "checkpoint": None, "live": False}
 
 
 def parse_overrides(tokens: list[str]) -> dict:
@@ -125,6 +127,7 @@ def run(argv: list[str] | None = None) -> dict:
                                         opts["steps"])
         opts["task"] = data.get("task", opts["task"])
     else:
+        opts["policy"] = choose_policy(opts["policy"], opts["task"])
         # the scripted controller acts in torque space; a random policy explores the task's own actions
         action = {"action": "torque"} if opts["policy"] == "scripted" else {}
         env = make_env(opts["task"], num_envs=opts["num_envs"], device=opts["device"], differentiable=False,

@@ -11,8 +11,9 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
 1. The spec is checked before anything runs (:mod:`.table_spec`): names, seeds, budget, override lists, then
    every pending run's ``dexmots-train`` config is composed and validated, so a typo fails at once naming the
    field or the run. ``methods=all`` / ``tasks=all`` take what exists today (the rest is noted in table.md).
-2. Runs whose directory already holds a final evaluation are skipped (an interrupted sweep restarts where it
-   stopped); the others are launched through **hydra's launcher plugins** on dexmots-train's own config, in
+2. Runs whose directory already holds a final evaluation of the same whole config (task, method, action, seed,
+   budget, every override: compared with the run's ``config.yaml``) are skipped (an interrupted sweep restarts
+   where it stopped; a run of another config, e.g. a smoke run in the same sweep directory, is run again); the others are launched through **hydra's launcher plugins** on dexmots-train's own config, in
    multirun mode: ``joblib`` (n_jobs processes on this machine), ``submitit_slurm`` (one SLURM job per run),
    ``submitit_local`` or ``basic`` (this process). Each run gets ``torch_threads`` = ``threads_per_job`` and
    the same number of simulator threads (``DEXMOTS_CPU_THREADS``), by default cores // n_jobs, so parallel
@@ -25,8 +26,8 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    ``eval.curve_episodes`` episodes each).
 4. Outputs in ``sweep_dir``: ``runs.csv`` (one row per run), ``table.md`` (Table 2's layout and the time to
    90 % success: :mod:`dexmots_rl.apps.table_writer`), ``curves_<task>.png`` (Fig. 3c) and
-   ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A tqdm bar on stderr counts
-   finished runs; the table is printed at the end.
+   ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A progress bar on stderr (on a
+   terminal) counts finished runs; the table is printed at the end.
 
 The launch uses hydra 1.3's config loader and launcher API (``hydra._internal``: the plugins' own entry
 points; hydra-core is pinned below 1.4).
@@ -116,8 +117,25 @@ def _train_multirun_config(cfg, sweep_dir: Path):
     return loader, master
 
 
+def _composed(loader, master, runs) -> list:
+    """``runs`` with their :func:`.table_spec.run_identity` (each run's dexmots-train config composed now, so
+    a bad override fails before any run)."""
+    import dataclasses
+
+    from .table_spec import SweepSpecError, run_identity
+
+    out = []
+    for run in runs:
+        try:
+            out.append(dataclasses.replace(run, identity=run_identity(loader.load_sweep_config(master,
+                                                                                               list(run.overrides)))))
+        except Exception as e:  # hydra's errors name the key
+            raise SweepSpecError(f"run {run.name}: {e}".splitlines()[0]) from None
+    return out
+
+
 def _check_composes(loader, master, runs) -> None:
-    """Compose and validate each run's dexmots-train config now, so a bad override fails before any run."""
+    """Validate each run's dexmots-train config now, so a bad value fails before any run."""
     from ..algorithms.validation import validate_run_config
     from .table_spec import SweepSpecError
 
@@ -130,18 +148,17 @@ def _check_composes(loader, master, runs) -> None:
 
 
 class _SweepProgress:
-    """A tqdm bar of finished runs, refreshed from their run directories by a polling thread (the launchers
+    """A progress bar of finished runs, refreshed from their run directories by a polling thread (the launchers
     block until the whole sweep is done)."""
 
     def __init__(self, pending, done: int, total: int, enabled: bool):
-        from tqdm.auto import tqdm
-
+        from ..progress import progress_bar
         from .table_spec import finished_metrics
 
         self._finished = finished_metrics
         self.pending, self.seen = list(pending), 0
-        self.bar = tqdm(total=total, initial=done, desc="dexmots-table", unit="run", disable=not enabled,
-                        file=sys.stderr, dynamic_ncols=True)
+        self.bar = progress_bar(total=total, initial=done, desc="dexmots-table", unit="run", disable=not enabled,
+                               file=sys.stderr, dynamic_ncols=True)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._poll, daemon=True)
 
@@ -265,7 +282,7 @@ def run_table(cfg) -> dict:
     from .. import envs
     from .table_writer import run_row, write_csv
     from ..algorithms.registry import list_algorithms
-    from .table_spec import finished_metrics, sweep_spec
+    from .table_spec import finished_metrics, replaced_runs, sweep_spec
 
     try:
         cores = len(os.sched_getaffinity(0))
@@ -274,10 +291,12 @@ def run_table(cfg) -> dict:
     threads = _threads(cfg, cores)
     spec = sweep_spec(cfg, list_algorithms(), envs.list_tasks(),
                       {t: envs.task_config(t).action for t in envs.list_tasks()})
-    runs = spec.runs(threads)
-    pending = [r for r in runs if finished_metrics(r) is None]
     loader, master = _train_multirun_config(cfg, spec.sweep_dir)
+    runs = _composed(loader, master, spec.runs(threads))
+    pending = [r for r in runs if finished_metrics(r) is None]
     _check_composes(loader, master, pending)
+    for name, differs in replaced_runs(pending).items():
+        log.warning("dexmots-table: %s holds a finished run of another config (%s): running it again", name, differs)
     log.info("dexmots-table: %d runs in %s (%d finished, skipped; %d to run with the %s launcher, %s threads each)",
              len(runs), spec.sweep_dir, len(runs) - len(pending), len(pending), cfg.launcher, threads or "default")
     failures, interrupted = {}, False

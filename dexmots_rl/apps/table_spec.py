@@ -6,7 +6,10 @@ A method is an entry of ``method_catalog``: a label and ``dexmots-train`` overri
 ``algo=<name>``. A run is identified by (task, method, action, seed) alone, and its directory is
 ``<sweep_dir>/runs/<task>/<method>/<action>/seed<seed>``: rerunning a sweep finds the runs it already has. A
 run is **finished** when its directory holds a ``metrics.json`` with a final evaluation of that task and algo
-(:func:`finished_metrics`); the action-space run with a task's default action is the table's run itself.
+and the ``config.yaml`` its trainer wrote is the run's whole ``dexmots-train`` config as the spec composes it
+today (task, method, action, seed, budget and every override; :func:`run_identity`), so a smoke run of a
+few iterations in the same sweep directory is run again, not reused (:func:`finished_metrics`); the
+action-space run with a task's default action is the table's run itself.
 
 ``tasks: all`` / ``methods: all`` mean the paper's tasks that are registered / the catalog's methods whose algo
 ``dexmots-train`` has (what was left out is noted in table.md); a name given explicitly must exist, or the
@@ -26,6 +29,7 @@ Example:
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,12 +37,21 @@ from typing import Any, Mapping, Sequence
 
 from ..envs import ACTION_TYPES
 
-__all__ = ["Method", "Run", "SweepSpec", "SweepSpecError", "finished_metrics", "sweep_spec"]
+__all__ = ["IDENTITY_IGNORED", "Method", "Run", "SweepSpec", "SweepSpecError", "finished_metrics", "replaced_runs",
+           "run_identity", "sweep_spec"]
+
+log = logging.getLogger(__name__)
 
 #: keys the table sets for every run itself: an override of one in the spec would break the comparison or the
 #: run directories (budget: the same for all; seed, task, task.action: the sweep's axes; algo: the catalog's)
 OWNED_KEYS = ("task", "seed", "algo", "task.action", "run_dir", "resume", "overwrite", "budget", "torch_threads",
               "hydra")
+
+
+#: dexmots-train keys that do not change what a run computes (where it writes, how it reports, its threads):
+#: left out of :func:`run_identity`
+IDENTITY_IGNORED = ("run_dir", "overwrite", "progress", "torch_threads", "resume", "logger", "checkpoint_every",
+                    "hydra")
 
 
 class SweepSpecError(ValueError):
@@ -66,6 +79,8 @@ class Run:
     experiment: str
     run_dir: Path
     overrides: tuple[str, ...]
+    #: the run's :func:`run_identity` as the spec composes it (None: not composed; then task and algo are checked)
+    identity: Mapping[str, Any] | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
@@ -265,9 +280,36 @@ def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_act
         notes=tuple(notes))
 
 
+def run_identity(config) -> dict[str, Any]:
+    """What a run computes, from its ``dexmots-train`` config (a DictConfig as composed, or a run directory's
+    ``config.yaml`` as loaded): the resolved config without :data:`IDENTITY_IGNORED`."""
+    from omegaconf import OmegaConf
+
+    data = OmegaConf.to_container(config, resolve=False) if not isinstance(config, dict) else dict(config)
+    kept = {k: v for k, v in data.items() if k not in IDENTITY_IGNORED}
+    return OmegaConf.to_container(OmegaConf.create(kept), resolve=True)
+
+
+def _stored_identity(run_dir: Path) -> dict | None:
+    from omegaconf import OmegaConf
+
+    try:
+        return run_identity(OmegaConf.load(run_dir / "config.yaml"))
+    except Exception:  # absent, torn or not YAML: not this spec's run  # noqa: BLE001
+        return None
+
+
+def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b), key=str)
+                for d in _differences(a.get(k, "<absent>"), b.get(k, "<absent>"), f"{prefix}{k}.")]
+    return [] if a == b else [prefix.rstrip(".")]
+
+
 def finished_metrics(run: Run) -> dict | None:
-    """``run``'s ``metrics.json`` when it holds a final evaluation of the run's task and algo, else ``None``
-    (absent, torn, another run's, or without a success rate)."""
+    """``run``'s ``metrics.json`` when it holds a final evaluation of the run's task and algo and, when
+    ``run.identity`` is known, the run directory's ``config.yaml`` is that identity; else ``None`` (absent,
+    torn, another run's, without a success rate, or trained with another config)."""
     try:
         data = json.loads((run.run_dir / "metrics.json").read_text())
     except (OSError, ValueError):
@@ -277,4 +319,23 @@ def finished_metrics(run: Run) -> dict | None:
     rate, episodes = data.get("success_rate"), data.get("episodes")
     if not isinstance(rate, (int, float)) or not 0 <= rate <= 1 or not isinstance(episodes, int) or episodes < 1:
         return None
+    if run.identity is not None:
+        stored = _stored_identity(run.run_dir)
+        if stored != run.identity:
+            differs = "no readable config.yaml" if stored is None else ", ".join(_differences(stored, run.identity))
+            log.debug("%s: finished with another config (%s): not this sweep's run", run.name, differs)
+            return None
     return data
+
+
+def replaced_runs(runs: Sequence[Run]) -> dict[str, str]:
+    """Run name -> the config keys that differ, for the runs whose directory holds a finished run of another
+    config (they will be run again, replacing it)."""
+    out = {}
+    for run in runs:
+        if run.identity is None or not (run.run_dir / "metrics.json").is_file():
+            continue
+        stored = _stored_identity(run.run_dir)
+        if stored is not None and stored != run.identity:
+            out[run.name] = ", ".join(_differences(stored, run.identity)[:5])
+    return out

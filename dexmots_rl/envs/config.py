@@ -5,8 +5,9 @@
 read the same dataclass: the registry stores it in hydra's ConfigStore as the ``task`` group entry, so
 the command line is checked against it too (an unknown key or a wrong type fails naming the key).
 
-:meth:`TaskConfig.validate` checks values and raises ``ValueError`` naming the field; it runs whenever
-an env is built from a config.
+:meth:`TaskConfig.validate` checks every field against its type annotation and its range (field metadata,
+:func:`.fields.rule`) and raises one ``ValueError`` naming ``task.<field>``; it runs whenever an env is built
+from a config.
 
 Example:
     >>> from dexmots_rl.envs import task_config
@@ -22,17 +23,18 @@ import math
 from typing import Any, Optional
 
 from .actions import ACTION_TYPES
+from .fields import rule, validate_fields
 from .rewards import RewardCoefficients
 from .transforms import GOAL_MODES
 
-__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict", "override_config",
-           "saved_config_defaults"]
+__all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict",
+           "override_config", "rule", "saved_config_defaults"]
 
 
 def check_number(name: str, value, low: float = 0.0, strict: bool = True) -> None:
-    """A ``ValueError`` naming ``name`` unless ``value`` is a real number (not a bool) above ``low``
+    """A ``ValueError`` naming ``name`` unless ``value`` is a finite real number (not a bool) above ``low``
     (``strict``) or at least ``low``."""
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if not number or not (value > low if strict else value >= low):
         raise ValueError(f"{name} must be a number {'>' if strict else '>='} {low:g}, got {value!r}")
 
@@ -55,9 +57,11 @@ class TaskConfig:
 
     name: str = ""  # registry name of the task (set by each task's config)
     num_envs: int = 64  # worlds dexmots-train simulates (make_env's num_envs argument overrides it)
-    goal: str = "pose_wrench"  # pose | pose_traj | pose_wrench: the goal representation (paper's ablation)
+    # pose | pose_traj | pose_wrench: the goal representation (paper's ablation)
+    goal: str = dataclasses.field(default="pose_wrench", metadata=rule(choices=GOAL_MODES))
     goal_horizon: int = 8  # reference steps ahead in the pose_traj / pose_wrench goals
-    action: str = "vi"  # torque | position | vi (variable impedance: PD targets and stiffness per joint)
+    # torque | position | vi (variable impedance: PD targets and stiffness per joint)
+    action: str = dataclasses.field(default="vi", metadata=rule(choices=ACTION_TYPES))
     max_episode_steps: int = 100  # env steps per episode (60 Hz control)
     substeps: int = 16  # physics substeps per env step
     references: Optional[str] = None  # plan file / directory from dexmots-plan; None: the task's analytic reference
@@ -65,20 +69,10 @@ class TaskConfig:
     mirror: bool = False  # worlds with a negative goal see the task mirrored (a mirror-symmetric task's option)
 
     def validate(self) -> "TaskConfig":
-        """Check every field (``ValueError`` naming the first bad one); returns self."""
-        for name in ("num_envs", "goal_horizon", "max_episode_steps", "substeps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"task.{name} must be a positive integer, got {value!r}")
-        if self.goal not in GOAL_MODES:
-            raise ValueError(f"task.goal must be one of {', '.join(GOAL_MODES)}, got {self.goal!r}")
-        if self.action not in ACTION_TYPES:
-            raise ValueError(f"task.action must be one of {', '.join(ACTION_TYPES)}, got {self.action!r}")
-        if not isinstance(self.mirror, bool):
-            raise ValueError(f"task.mirror must be true or false, got {self.mirror!r}")
-        if not isinstance(self.reward, RewardCoefficients):
-            self.reward = RewardCoefficients(**dict(self.reward))
-        return self
+        """Check every field against its annotation and rule (one ``ValueError`` naming the first bad
+        ``task.<field>``), normalising lists to tuples and a ``reward`` mapping to
+        :class:`RewardCoefficients`; returns self. A task adds cross-field checks by extending it."""
+        return validate_fields(self, "task")
 
 
 def _field_names(cls) -> list[str]:
@@ -93,11 +87,8 @@ def override_config(cfg: TaskConfig, overrides: dict[str, Any]) -> TaskConfig:
     if unknown:
         raise ValueError(f"task {cfg.name!r} has no option {unknown[0]!r}; its options are: {', '.join(names)}")
     values = dict(overrides)
-    if isinstance(values.get("reward"), dict):
-        values["reward"] = dataclasses.replace(cfg.reward, **values["reward"])
-    for key, value in values.items():
-        if isinstance(value, list):
-            values[key] = tuple(value)
+    if isinstance(values.get("reward"), dict):  # checked (and built) by validate, naming task.reward.<key>
+        values["reward"] = {**dataclasses.asdict(cfg.reward), **values["reward"]}
     return dataclasses.replace(cfg, **values).validate()
 
 

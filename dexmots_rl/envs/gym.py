@@ -2,8 +2,8 @@
 batched worlds) and :class:`DexGymEnv` (one world, a ``gymnasium.Env``).
 
 Both wrap ``make_env(task, ...)`` (non-differentiable: gymnasium hands out numpy arrays) and expose its
-flat policy ``"observation"`` (float32 ``Box``) and its action box ``[-1, 1]``. Importing this module
-(``dexmots_rl.envs`` does) registers ``dexmots/<TaskName>-v0`` for every task in ``list_tasks()``
+flat policy ``"observation"`` (float32 ``Box``) and its action box ``[-1, 1]``. ``import dexmots_rl``
+registers ``dexmots/<TaskName>-v0`` for every shipped task, importing this module for every task in ``list_tasks()``
 (``screw_claw`` -> ``dexmots/ScrewClaw-v0``), with a ``vector_entry_point``, so
 ``gymnasium.make_vec("dexmots/ScrewClaw-v0", num_envs=N)`` builds N batched worlds in one simulator.
 
@@ -18,7 +18,7 @@ every world, there is no "reset-only" step for a subset.
 
 Example:
     >>> import gymnasium as gym
-    >>> import dexmots_rl.envs.gym  # noqa: F401  (registers the ids; importing dexmots_rl.envs does too)
+    >>> import dexmots_rl  # noqa: F401  (registers the ids)
     >>> envs = gym.make_vec("dexmots/ScrewClaw-v0", num_envs=3)
     >>> obs, info = envs.reset(seed=0)
     >>> obs.shape, envs.single_action_space.shape
@@ -38,12 +38,9 @@ import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..gym_ids import gym_id, register_gym_ids
+
 __all__ = ["DexGymEnv", "DexVectorEnv", "gym_id", "register_gym_envs"]
-
-
-def gym_id(task: str) -> str:
-    """The gymnasium id of a task: ``screw_claw`` -> ``dexmots/ScrewClaw-v0``."""
-    return "dexmots/" + "".join(part.capitalize() for part in task.split("_")) + "-v0"
 
 
 def _spaces(env) -> tuple[gym.spaces.Box, gym.spaces.Box]:
@@ -52,6 +49,18 @@ def _spaces(env) -> tuple[gym.spaces.Box, gym.spaces.Box]:
     obs = gym.spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
     act = gym.spaces.Box(-1.0, 1.0, shape=(act_dim,), dtype=np.float32)
     return obs, act
+
+
+def _action_array(action, space: gym.spaces.Box) -> np.ndarray:
+    """``action`` as a float32 array of exactly ``space``'s shape, or a ``ValueError`` naming the expected
+    shape (an array of the right size but another shape, e.g. transposed, is refused, not reshaped)."""
+    try:
+        array = np.asarray(action, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be an array of shape {space.shape}, got {type(action).__name__}") from None
+    if array.shape != space.shape:
+        raise ValueError(f"action must have shape {space.shape}, got {array.shape}")
+    return array
 
 
 def _numpy(x: torch.Tensor, dtype=np.float32) -> np.ndarray:
@@ -92,8 +101,8 @@ class DexVectorEnv(VectorEnv):
     def step(self, actions):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        action = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.env.device)
-        action = action.reshape(self.num_envs, -1).to(self.env.base_env.dtype)
+        action = torch.as_tensor(_action_array(actions, self.action_space), device=self.env.device)
+        action = action.to(self.env.base_env.dtype)
         out = self.env.step(self._td.clone().set("action", action))
         nxt = out.get("next")
         obs, info = _numpy(nxt.get("observation")), self._info(nxt)
@@ -143,7 +152,7 @@ class DexGymEnv(gym.Env):
     def step(self, action):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        a = torch.as_tensor(np.asarray(action, dtype=np.float32), device=self.env.device).reshape(1, -1)
+        a = torch.as_tensor(_action_array(action, self.action_space), device=self.env.device).reshape(1, -1)
         out = self.env.step(self._td.clone().set("action", a.to(self.env.base_env.dtype)))
         nxt = out.get("next")
         self._td = nxt.exclude("reward")
@@ -155,14 +164,7 @@ def register_gym_envs() -> list[str]:
     """Register ``dexmots/<Task>-v0`` (single and vector entry points) for every registered task."""
     from .registry import list_tasks
 
-    ids = []
-    for task in list_tasks():
-        env_id = gym_id(task)
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=f"{__name__}:DexGymEnv",
-                         vector_entry_point=f"{__name__}:DexVectorEnv", kwargs={"task": task})
-        ids.append(env_id)
-    return ids
+    return register_gym_ids(list_tasks())
 
 
 register_gym_envs()

@@ -17,8 +17,10 @@ point may move on the face). :func:`find_pregrasps` then, per candidate:
    sharpness of 1000 /m and 2 mm surface smoothing it still pushes ~0.3 N at a 3 mm gap, so a fingertip
    that presses lightly rests 2-4 mm out in exact geometry: the default tolerance is 5 mm.)
 
-The poses are cached per task in a JSON file the package ships (``assets/pregrasps/<task>.json``,
-written atomically); ``dexmots-pregrasp --task <name>`` regenerates it, deterministically for a seed.
+The poses are stored per task in a JSON file (format, task, seed, poses; written atomically): the package
+ships one per task (``assets/pregrasps/<task>.json``); ``dexmots-pregrasp --task <name>`` writes a new one
+where the user says, deterministically for a seed, and a task uses it with ``task.pregrasps=<file>``. A file
+is read, and checked whole (:func:`load_pregrasps`), when its task's env is built.
 Tasks with ``initial="pregrasp"`` draw one of these per episode (:class:`~.tasks.allegro.operate.OperateEnv`).
 """
 
@@ -207,18 +209,38 @@ def save_pregrasps(path, task: str, poses: np.ndarray, seed: int) -> None:
                              "poses": [[round(float(x), 6) for x in p] for p in poses]})
 
 
-def load_pregrasps(path, num_dofs: int) -> np.ndarray:
-    """Pre-grasps [K, num_dofs] from ``path``; :class:`PregraspError` naming the file and field otherwise."""
+#: rad: how far past a joint limit a stored pose may lie (the files round to 1e-6 rad)
+LIMIT_TOLERANCE = 1e-3
+
+
+def load_pregrasps(path, num_dofs: int, task: str | None = None, lower=None, upper=None) -> np.ndarray:
+    """Pre-grasps [K, num_dofs] from ``path``, the whole file checked: its format, its ``task`` (when ``task``
+    is given, the file must be that task's), and every entry of ``poses`` (a list of ``num_dofs`` finite
+    joint angles, within ``[lower, upper]`` per joint when given, rad). One :class:`PregraspError` naming
+    the file and the first bad field or entry (``poses[2][5]``) otherwise; nothing is clamped."""
     path = Path(path)
     if not path.is_file():
-        raise PregraspError(f"{path}: no pre-grasp file (write it with: dexmots-pregrasp --task <name>)")
+        raise PregraspError(f"{path}: no pre-grasp file (write one with: dexmots-pregrasp --task <name>)")
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as e:
         raise PregraspError(f"{path}: not a pre-grasp file ({e})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise PregraspError(f"{path}: field 'format' must be {FORMAT!r}")
-    poses = np.asarray(data.get("poses"), dtype=np.float64)
-    if poses.ndim != 2 or poses.shape[1] != num_dofs or len(poses) == 0 or not np.isfinite(poses).all():
-        raise PregraspError(f"{path}: field 'poses' must be a non-empty list of {num_dofs} finite joint angles each")
-    return poses
+    if task is not None and data.get("task") != task:
+        raise PregraspError(f"{path}: field 'task' is {data.get('task')!r}, but the file is loaded for task {task!r} "
+                            "(a pre-grasp file holds one task's hand poses)")
+    poses = data.get("poses")
+    if not isinstance(poses, list) or not poses:
+        raise PregraspError(f"{path}: field 'poses' must be a non-empty list of poses ({num_dofs} joint angles each)")
+    for i, pose in enumerate(poses):
+        if not isinstance(pose, list) or len(pose) != num_dofs:
+            size = f"{len(pose)} values" if isinstance(pose, list) else type(pose).__name__
+            raise PregraspError(f"{path}: poses[{i}] must be a list of {num_dofs} joint angles, got {size}")
+        for j, q in enumerate(pose):
+            if isinstance(q, bool) or not isinstance(q, (int, float)) or not np.isfinite(q):
+                raise PregraspError(f"{path}: poses[{i}][{j}] must be a finite joint angle (rad), got {q!r}")
+            if lower is not None and not lower[j] - LIMIT_TOLERANCE <= q <= upper[j] + LIMIT_TOLERANCE:
+                raise PregraspError(f"{path}: poses[{i}][{j}] = {q:g} rad is outside joint {j}'s range "
+                                    f"[{lower[j]:.4g}, {upper[j]:.4g}]")
+    return np.asarray(poses, dtype=np.float64)

@@ -17,11 +17,12 @@ shape) and is differentiable everywhere, including at zero error (norms go throu
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import torch
 
 from ..quaternions import quat_angle
+from .fields import rule
 
 __all__ = [
     "RewardCoefficients",
@@ -200,10 +201,10 @@ class RewardCoefficients:
         1.0
     """
 
-    lambda_pose: float = 1.0
-    lambda_wrench: float = 1.0
-    lambda_act: float = 0.01
-    lambda_f: float = 0.1
+    lambda_pose: float = field(default=1.0, metadata=rule(ge=0))
+    lambda_wrench: float = field(default=1.0, metadata=rule(ge=0))
+    lambda_act: float = field(default=0.01, metadata=rule(ge=0))
+    lambda_f: float = field(default=0.1, metadata=rule(ge=0))
 
     def __post_init__(self):
         for f in fields(self):

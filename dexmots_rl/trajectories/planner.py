@@ -187,9 +187,9 @@ def optimize_wrenches(
     # linear decay to 5% of lr: late iterations refine instead of oscillating around the optimum
     decay = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 1.0 - 0.95 * i / max(iterations, 1))
     history: list[float] = []
-    from tqdm.auto import tqdm
+    from ..progress import progress_bar
 
-    bar = tqdm(range(iterations), desc="optimize_wrenches", disable=not progress, leave=False)
+    bar = progress_bar(range(iterations), desc="optimize_wrenches", disable=not progress, leave=False)
     for _ in bar:
         opt.zero_grad()
         loss = error(wrench_var).mean()

@@ -34,7 +34,7 @@ import torch
 from tensordict import TensorDict
 
 from ..base import DexEnv
-from ..config import TaskConfig, check_range
+from ..config import TaskConfig, rule
 from ..references import lookup
 from ..rewards import action_penalty, angle_tracking_reward, distal_weighted_joint_weights, fingertip_reward
 
@@ -44,43 +44,30 @@ REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is
 KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
 # dexmots-eval breakdowns by the knob joint's randomised parameters (every knob-like task draws them)
 PARAM_BREAKDOWNS = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping")}
+RANGE = rule(ge=0, ordered=True)  # a (low, high) pair of non-negative numbers
 
 
 @dataclasses.dataclass
 class KnobTurnConfig(TaskConfig):
     """Fields of every knob-turning task (defaults: the claw's; each task sets its own)."""
 
-    initial: str = "grasp"  # the start pose: one of the task's initial_choices
+    # the start pose: one of the task's initial_choices
+    initial: str = dataclasses.field(default="grasp", metadata=rule(choices="initial_choices"))
     initial_choices: ClassVar[tuple[str, ...]] = ("grasp",)  # the start poses the task's env knows
-    goal_range: tuple[float, float] = (math.pi / 4, math.pi / 2)  # |goal angle| (rad), random sign
-    damping_range: tuple[float, float] = (0.3, 0.7)  # knob joint damping (N m s/rad), drawn per episode
-    friction_range: tuple[float, float] = (0.2, 1.0)  # knob joint Coulomb friction (N m), drawn per episode
-    joint_noise: float = 0.05  # rad: uniform noise on the start pose
+    # |goal angle| (rad), random sign
+    goal_range: tuple[float, float] = dataclasses.field(default=(math.pi / 4, math.pi / 2), metadata=RANGE)
+    # knob joint damping (N m s/rad), drawn per episode
+    damping_range: tuple[float, float] = dataclasses.field(default=(0.3, 0.7), metadata=RANGE)
+    # knob joint Coulomb friction (N m), drawn per episode
+    friction_range: tuple[float, float] = dataclasses.field(default=(0.2, 1.0), metadata=RANGE)
+    joint_noise: float = dataclasses.field(default=0.05, metadata=rule(ge=0))  # rad: uniform noise on the start pose
     success_threshold: float = 0.1  # rad: |theta - goal| at the episode end (the paper's epsilon_task)
     ramp_steps: int = 25  # analytic reference: the angle ramps to the goal over this many steps
     pose_scale: float = 0.5  # rad: r_pose = exp(-|theta - ref| / pose_scale)
     torque_scale: float = 5.0  # N m: r_wrench = exp(-|tau - ref| / torque_scale)
     fingertip_scale: float = 1.0  # m: r_f = sum_i exp(-|x_fi - x_o| / fingertip_scale)
-    reference_torque: str = "nominal"  # nominal | episode: the reference torque for the MJCF's knob or this one
-
-    def validate(self) -> "KnobTurnConfig":
-        super().validate()
-        if self.initial not in self.initial_choices:
-            raise ValueError(f"task.initial must be one of {', '.join(self.initial_choices)}, got {self.initial!r}")
-        self.goal_range = check_range("task.goal_range", self.goal_range)
-        self.damping_range = check_range("task.damping_range", self.damping_range)
-        self.friction_range = check_range("task.friction_range", self.friction_range)
-        if self.ramp_steps < 1:
-            raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
-        if self.reference_torque not in REFERENCE_TORQUES:
-            raise ValueError(f"task.reference_torque must be one of {', '.join(REFERENCE_TORQUES)}, "
-                             f"got {self.reference_torque!r}")
-        for name in ("pose_scale", "torque_scale", "fingertip_scale", "success_threshold"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"task.{name} must be > 0, got {getattr(self, name)!r}")
-        if not self.joint_noise >= 0:
-            raise ValueError(f"task.joint_noise must be >= 0, got {self.joint_noise!r}")
-        return self
+    # nominal | episode: the reference torque for the MJCF's knob or this one
+    reference_torque: str = dataclasses.field(default="nominal", metadata=rule(choices=REFERENCE_TORQUES))
 
 
 class KnobTurnEnv(DexEnv):

@@ -19,18 +19,19 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import ClassVar
+from pathlib import Path
+from typing import ClassVar, Optional
 
 import numpy as np
 import torch
 
 from ....sim import ContactParams
-from ...config import BenchPoses, check_range
+from ...config import BenchPoses, rule
 from ...pregrasp import ContactRegion, PregraspError, load_pregrasps, pregrasp_path
 from ...rewards import RewardCoefficients
-from ..knob import PARAM_BREAKDOWNS, KnobTurnConfig, KnobTurnEnv
+from ..knob import PARAM_BREAKDOWNS, RANGE, KnobTurnConfig, KnobTurnEnv
 
-__all__ = ["OperateConfig", "OperateEnv", "HAND_CONTACT", "FLAT", "bench_poses"]
+__all__ = ["OperateConfig", "OperateEnv", "HAND_CONTACT", "FLAT", "bench_poses", "task_pregrasps"]
 
 # the hand's contact law as allegro_rotate sizes it (a centimetre-scale object, fingertips pushing ~5 N)
 HAND_CONTACT = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
@@ -43,11 +44,14 @@ class OperateConfig(KnobTurnConfig):
 
     initial: str = "pregrasp"  # pregrasp (one of the task's pre-grasps, drawn per episode) | flat
     initial_choices: ClassVar[tuple[str, ...]] = ("pregrasp", "flat")
-    goal_fraction: tuple[float, float] = (0.9, 0.9)  # goal = lower + f (upper - lower), f drawn in this range
+    # goal = lower + f (upper - lower), f drawn in this range
+    goal_fraction: tuple[float, float] = dataclasses.field(default=(0.9, 0.9), metadata=rule(ge=0, le=1, ordered=True))
     goal_range: tuple[float, float] = (0.0, 0.0)  # unused here (the goal is a fraction of the joint's range)
     damping_range: tuple[float, float] = (0.005, 0.02)  # part joint damping (N m s/rad)
     friction_range: tuple[float, float] = (0.0, 0.004)  # part joint Coulomb friction (N m)
-    stiffness_range: tuple[float, float] = (0.03, 0.08)  # return spring (N m/rad)
+    # return spring (N m/rad)
+    stiffness_range: tuple[float, float] = dataclasses.field(default=(0.03, 0.08), metadata=RANGE)
+    pregrasps: Optional[str] = None  # a pre-grasp file (dexmots-pregrasp --out); None: the one the package ships
     joint_noise: float = 0.02  # rad, on the start pose
     success_threshold: float = 0.05  # rad: |theta - goal| at the episode end (each task: 8 % of its range, so
     # that pushing the part onto its stop is not a success)
@@ -59,20 +63,24 @@ class OperateConfig(KnobTurnConfig):
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
 
-    def validate(self) -> "OperateConfig":
-        super().validate()
-        self.goal_fraction = check_range("task.goal_fraction", self.goal_fraction)
-        if not 0.0 <= self.goal_fraction[0] <= self.goal_fraction[1] <= 1.0:
-            raise ValueError(f"task.goal_fraction must lie in [0, 1], got {self.goal_fraction}")
-        self.stiffness_range = check_range("task.stiffness_range", self.stiffness_range)
-        if self.stiffness_range[0] < 0 or self.damping_range[0] < 0 or self.friction_range[0] < 0:
-            raise ValueError("task.stiffness_range, task.damping_range and task.friction_range must be >= 0")
-        return self
-
 
 @functools.lru_cache(maxsize=None)
-def _cached_pregrasps(task: str, num_dofs: int) -> np.ndarray:
-    return load_pregrasps(pregrasp_path(task), num_dofs)
+def _read_pregrasps(path: str, modified_ns: int, task: str, lower: tuple, upper: tuple) -> np.ndarray:
+    return load_pregrasps(path, len(lower), task, lower, upper)
+
+
+def task_pregrasps(task: str, scene, path: str | None = None) -> np.ndarray:
+    """``task``'s pre-grasps [K, hand dofs], from ``path`` (a user's file) or the shipped file, checked whole
+    against the task and ``scene``'s joint ranges (:func:`~dexmots_rl.envs.pregrasp.load_pregrasps`); read
+    once per file version."""
+    file = Path(path).expanduser() if path is not None else pregrasp_path(task)
+    try:
+        modified = file.stat().st_mtime_ns
+    except OSError:
+        modified = -1  # load_pregrasps names the missing file
+    nu = scene.num_hand_dofs
+    return _read_pregrasps(str(file), modified, task, tuple(float(x) for x in scene.dof_lower[:nu]),
+                           tuple(float(x) for x in scene.dof_upper[:nu]))
 
 
 class OperateEnv(KnobTurnEnv):
@@ -90,7 +98,7 @@ class OperateEnv(KnobTurnEnv):
         lower, upper = self.sim.scene.object_range
         self._joint_range = (float(lower), float(upper))
         if self.config.initial == "pregrasp":
-            poses = _cached_pregrasps(self.config.name, self.sim.nu)
+            poses = task_pregrasps(self.config.name, self.sim.scene, self.config.pregrasps)
             self._pregrasps = torch.as_tensor(poses, dtype=self.dtype, device=self.device)
 
     def start_pose(self) -> tuple[float, ...]:
@@ -110,14 +118,31 @@ class OperateEnv(KnobTurnEnv):
         return lower + self._uniform(n, self.config.goal_fraction) * (upper - lower)
 
 
+class _LazyBenchPoses:
+    """A task class's ``bench`` poses, built on first use: they read the shipped pre-grasp file, which is
+    read when something needs it (a benchmark), not when the task module is imported."""
+
+    def __init__(self, task: str, close: tuple[float, ...]):
+        self.task, self.close, self.poses = task, close, None
+
+    def __get__(self, instance, owner) -> BenchPoses:
+        if self.poses is None:
+            from .rotate import GRASP
+
+            try:
+                from ....sim import load_scene
+
+                scene = load_scene(owner.asset_path())
+                touch = tuple(float(x) for x in task_pregrasps(self.task, scene)[0])
+            except PregraspError:  # no (valid) file yet: the knob task's grasp
+                touch = GRASP
+            self.poses = BenchPoses(open_q=(*FLAT, 0.0), close_action=self.close, touch_q=(*touch, 0.0),
+                                    free_q=(*FLAT, 0.0), squeeze_action=tuple(0.5 * a for a in self.close))
+        return self.poses
+
+
 def bench_poses(task: str, close: tuple[float, ...]) -> BenchPoses:
     """A task's benchmark poses: straight fingers (open and free), its first pre-grasp (touching; the knob
-    task's grasp until the pre-grasp file exists), ``close`` and half of it as the squeeze."""
-    from .rotate import GRASP
-
-    try:
-        touch = tuple(float(x) for x in _cached_pregrasps(task, len(FLAT))[0])
-    except PregraspError:
-        touch = GRASP
-    return BenchPoses(open_q=(*FLAT, 0.0), close_action=close, touch_q=(*touch, 0.0), free_q=(*FLAT, 0.0),
-                      squeeze_action=tuple(0.5 * a for a in close))
+    task's grasp until the pre-grasp file exists), ``close`` and half of it as the squeeze (a class attribute
+    built on first use)."""
+    return _LazyBenchPoses(task, close)

@@ -40,7 +40,7 @@ from tensordict import TensorDict
 from ....quaternions import quat_angle, quat_conjugate, quat_multiply, quat_to_matrix, slerp
 from ....sim import ContactParams
 from ...base import DexEnv
-from ...config import BenchPoses, PlanProblem, TaskConfig, check_number
+from ...config import BenchPoses, PlanProblem, TaskConfig, rule
 from ...references import lookup
 from ...registry import register_task
 from ...rewards import (RewardCoefficients, action_penalty, distal_weighted_joint_weights, fingertip_reward,
@@ -56,6 +56,7 @@ __all__ = ["ReposeCubeConfig", "ReposeCubeEnv", "REST", "original_test"]
 REST = (0.0, 1.152, 1.284, 0.252) * 3 + (0.49, 1.16, 0.791, 1.328)
 OPEN = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)
 CUBE = (0.0, 0.0, 0.1325, 1.0, 0.0, 0.0, 0.0)  # resting on the palm (the MJCF's start)
+NON_NEGATIVE = rule(ge=0)
 
 
 @dataclasses.dataclass
@@ -67,32 +68,26 @@ class ReposeCubeConfig(TaskConfig):
     goal_angle: float = 1.0  # rad: the goal is the start turned by q_z(a) q_x(b), |a|, |b| <= goal_angle
     success_threshold: float = 0.1  # rad: 3-D rotation error at the episode end
     fall_distance: float = 0.24  # m: the cube this far from its goal position ends the episode
-    joint_noise: float = 0.05  # rad: uniform noise on the start pose ...
-    max_start_depth: float = 0.0015  # m: ... redrawn where a finger's contact sphere reaches deeper into the cube
+    # rad: uniform noise on the start pose ...
+    joint_noise: float = dataclasses.field(default=0.05, metadata=NON_NEGATIVE)
+    # m: ... redrawn where a finger's contact sphere reaches deeper into the cube
+    max_start_depth: float = dataclasses.field(default=0.0015, metadata=NON_NEGATIVE)
     ramp_steps: int = 100  # the reference orientation slerps to the goal over this many steps
     pos_scale: float = 10.0  # 1/m: position error weight inside r_pose (1 cm counts as 0.1 rad)
     force_scale: float = 1.0  # N: r_wrench force scale
     torque_scale: float = 0.05  # N m: r_wrench torque scale
     fingertip_scale: float = 0.05  # m
-    precision_weight: float = 1.0  # weight of the sharp orientation term 0.1 / (θ + 0.1) (1 at zero error)
-    position_penalty: float = 10.0  # 1/m: linear penalty on the cube's distance from the reference position
-    drop_penalty: float = 20.0  # reward lost on the step the cube falls (the episode then terminates)
+    # weight of the sharp orientation term 0.1 / (θ + 0.1) (1 at zero error)
+    precision_weight: float = dataclasses.field(default=1.0, metadata=NON_NEGATIVE)
+    # 1/m: linear penalty on the cube's distance from the reference position
+    position_penalty: float = dataclasses.field(default=10.0, metadata=NON_NEGATIVE)
+    # reward lost on the step the cube falls (the episode then terminates)
+    drop_penalty: float = dataclasses.field(default=20.0, metadata=NON_NEGATIVE)
     rest_on_palm: bool = True  # the goal's and the reference's centre rise with their tilt so that the turned cube
     # still rests on the palm (a fixed centre puts a tilted cube's lower edge up to 1.3 cm into the palm; False
     # keeps the centre where the cube starts, as configs saved without this field were trained)
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
-
-    def validate(self) -> "ReposeCubeConfig":
-        super().validate()
-        for name in ("goal_angle", "success_threshold", "fall_distance", "pos_scale", "force_scale", "torque_scale",
-                     "fingertip_scale"):
-            check_number(f"task.{name}", getattr(self, name))
-        for name in ("joint_noise", "max_start_depth", "precision_weight", "position_penalty", "drop_penalty"):
-            check_number(f"task.{name}", getattr(self, name), strict=False)
-        if self.ramp_steps < 1:
-            raise ValueError(f"task.ramp_steps must be >= 1, got {self.ramp_steps}")
-        return self
 
 
 def _axis_angle_quat(axis: int, angle: torch.Tensor) -> torch.Tensor:
