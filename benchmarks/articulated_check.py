@@ -1,0 +1,87 @@
+"""Forward throughput of the Allegro hand with an articulated library object, against MuJoCo on the same scene.
+
+    python benchmarks/articulated_check.py --objects spray_bottle_a drawer_a scissors_a --num-envs 256
+
+Prints one JSON line per object: our env-steps/s (forward, no gradients; and forward + backward), MuJoCo's
+(``mj_step`` over every world in turn, the same substeps of the same timestep, its own contact on the same
+collision geometry), their ratio, and the cold kernel compile seconds of the first step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+
+def _rate(fn, steps: int, worlds: int) -> float:
+    fn()  # warm
+    start = time.perf_counter()
+    for _ in range(steps):
+        fn()
+    return steps * worlds / (time.perf_counter() - start)
+
+
+def measure(name: str, worlds: int, steps: int) -> dict:
+    import mujoco
+
+    from dexmots_rl.assets.hand_scene import hand_object_scene_xml
+    from dexmots_rl.assets.objects import load_object
+    from dexmots_rl.sim import load_scene
+    from dexmots_rl.sim.articulated import ArticulatedSimulator
+
+    folder = Path(tempfile.mkdtemp())
+    path = folder / "scene.xml"
+    path.write_text(hand_object_scene_xml(load_object(name), folder))
+    sim = ArticulatedSimulator(load_scene(path), worlds)
+    q, qd = sim.initial_state()
+    ctrl, params = sim.zero_control(), sim.default_params()
+    start = time.perf_counter()
+    with torch.no_grad():
+        sim.step(q, qd, ctrl, params)
+    compile_s = time.perf_counter() - start
+    state = {"q": q, "qd": qd}
+
+    def forward():
+        with torch.no_grad():
+            out = sim.step(state["q"], state["qd"], ctrl, params)
+        state["q"], state["qd"] = out.joint_q, out.joint_qd
+
+    tau = torch.zeros(worlds, sim.nu, requires_grad=True)
+
+    def forward_backward():
+        c = sim.zero_control()
+        c.tau = tau
+        out = sim.step(q, qd, c, params)
+        out.joint_q.sum().backward()
+
+    ours = _rate(forward, steps, worlds)
+    ours_grad = _rate(forward_backward, max(2, steps // 4), worlds)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    datas = [mujoco.MjData(m) for _ in range(worlds)]
+
+    def mujoco_step():
+        for d in datas:
+            mujoco.mj_step(m, d, nstep=sim.substeps)
+
+    theirs = _rate(mujoco_step, max(2, steps // 4), worlds)
+    return {"object": name, "worlds": worlds, "ours_forward": round(ours), "ours_forward_backward": round(ours_grad),
+            "mujoco": round(theirs), "ratio": round(ours / theirs, 2), "compile_s": round(compile_s, 1)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--objects", nargs="+", default=["spray_bottle_a", "drawer_a", "scissors_a"])
+    parser.add_argument("--num-envs", type=int, default=256)
+    parser.add_argument("--steps", type=int, default=20)
+    args = parser.parse_args()
+    for name in args.objects:
+        print(json.dumps(measure(name, args.num_envs, args.steps)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
