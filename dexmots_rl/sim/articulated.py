@@ -5,22 +5,24 @@ with moving parts, sim/object_model.py). :class:`ArticulatedSimulator` steps it 
 :class:`~dexmots_rl.sim.Simulator` (state ``joint_q``/``joint_qd`` = the hand's joints then the object's
 coordinates, a :class:`~dexmots_rl.sim.Control`, named per-world parameters), so envs use either.
 
-One substep is five launches over all worlds (each kernel module documents its part): the object's frames, the
-table's contact (a thread per world and body), the fingers' contact (a thread per world and finger sphere),
-the object tree's solve and the hand's (a thread per world and finger). With gradients on, the launches are
-recorded on a ``wp.Tape``, each substep writing arrays of its own.
+One substep is six launches over all worlds (each kernel module documents its part): the object's frames, the
+table's contact (a thread per world and body), the fingers' contact (a thread per world and finger sphere), the
+sum of each body's contacts, the object tree's solve and the hand's (a thread per world and finger). The
+launches are recorded once per trajectory of buffers and replayed, their adjoints in reverse for the gradient
+(sim/articulated_stepper.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+import weakref
 
 import numpy as np
 import torch
 import warp as wp
 
 from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SPHERE, build_hand_kernels
+from .articulated_stepper import ArticulatedTrajectory
 from .mjcf_shapes import _quat_to_mat
 from .model import ContactParams
 from .object_model import ObjectTree
@@ -201,6 +203,11 @@ class ArticulatedSimulator(ObjectSimulator):
         z = self._zeros(self.num_worlds, self.nu)
         return Control(z, z, z, z)
 
+    @property
+    def num_params_packed(self) -> int:
+        """Columns of :meth:`pack_params`' result."""
+        return len(self.param_names) or 4
+
     def step(self, joint_q, joint_qd, control, params):
         """One env step; returns a :class:`~dexmots_rl.sim.StepOutput` (the hand's contact wrench on the object
         is summed over its bodies, torque about the base origin)."""
@@ -216,136 +223,67 @@ class ArticulatedSimulator(ObjectSimulator):
 
     def observe(self, joint_q, joint_qd=None):
         """Body poses [N, B, 7] (hand links, then the object's bodies) and fingertips [N, F, 3]."""
+        n, k, h, nb = joint_q.shape[0], self.kernels, self.hand_kernels, self.tree.num_bodies
         with torch.no_grad():
-            _, out = self._run_full([joint_q.detach().to(self.dtype)] + [self._zeros(joint_q.shape[0], self.nv)]
-                                 + [self._zeros(joint_q.shape[0], self.nu)] * 4
-                                 + [self._zeros(joint_q.shape[0], max(4, 4 * self.tree.num_parts)),
-                                    self._zeros(joint_q.shape[0], 6)], grad=False, substeps=0)
-        return wp.to_torch(out[-2]).view(-1, self.num_bodies, 7).clone(), \
-            wp.to_torch(out[-1]).view(-1, self.scene.num_fingers, 3).clone()
-
-    def _run_full(self, inputs, grad: bool, substeps: int | None = None):
-        """Launch one env step from torch inputs; returns the warp input arrays then the outputs (joint_q,
-        joint_qd, wrench, contact force, body poses, fingertips)."""
-        n, k, h = self.num_worlds, self.kernels, self.hand_kernels
-        wdt = k.dtype
-        nb, nu = self.tree.num_bodies, self.nu
-        warp_in = [wp.from_torch(t.contiguous(), requires_grad=grad) for t in inputs]
-        q_all, qd_all, tau, q_target, kp, kd, params, ext = warp_in
-
-        def new(dtype, *shape):
-            return wp.zeros((n, *shape), dtype=dtype, device=self.device, requires_grad=grad)
-
-        # the input state split into hand and object (differentiable copies)
-        hq, hqd, oq, oqd = new(wdt, nu), new(wdt, nu), new(wdt, self.tree.nq), new(wdt, self.tree.nv)
-        wp.launch(_split, dim=(n, self.nq), inputs=[q_all, nu], outputs=[hq, oq], device=self.device)
-        wp.launch(_split, dim=(n, self.nv), inputs=[qd_all, nu], outputs=[hqd, oqd], device=self.device)
-        # the planner's wrench acts on the base (torque about its com)
-        body_ext = new(wdt, 6 * nb)
-        wp.launch(_pad_columns, dim=(n, 6), inputs=[ext], outputs=[body_ext], device=self.device)
-        wrench, normal = new(wdt, 6), wp.zeros(n, dtype=wdt, device=self.device, requires_grad=grad)
-        dt = wdt(self.sub_dt)
-        steps = self.substeps if substeps is None else substeps
-        for _ in range(steps):
-            frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
+            q = joint_q.detach().to(self.dtype).contiguous()
+            hq, oq = wp.from_torch(q[:, :self.nu].contiguous()), wp.from_torch(q[:, self.nu:].contiguous())
+            oqd = wp.from_torch(self._zeros(n, self.tree.nv))
+            frames = [wp.zeros((n, nb), dtype=t, device=self.device) for t in (k.vec3, k.mat33, k.vec3, k.vec3,
+                                                                               k.vec3)]
             wp.launch(k.frames, dim=n, inputs=[self.model, oq, oqd], outputs=frames, device=self.device)
-            contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
-            if k.table:
-                wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, *frames, dt], outputs=contact,
-                          device=self.device)
-            gen = new(wdt, nu)
-            step_normal = wp.zeros(n, dtype=wdt, device=self.device, requires_grad=grad)
-            hand_f, hand_t = new(k.vec3, nb), new(k.vec3, nb)
-            wp.launch(h.finger_contact, dim=(n, len(self.scene.point_radius)),
-                      inputs=[self.hand_model, hq, hqd, *frames],
-                      outputs=[gen, hand_f, hand_t, step_normal], device=self.device)
-            total_f, total_t = new(k.vec3, nb), new(k.vec3, nb)
-            step_wrench, next_wrench, next_normal = new(wdt, 6), new(wdt, 6), wp.zeros(n, dtype=wdt, device=self.device,
-                                                                                          requires_grad=grad)
-            wp.launch(k.sum_contacts, dim=n, inputs=[contact[0], contact[1], hand_f, hand_t, frames[0], frames[2],
-                                                    wrench, normal, step_normal, wdt(1.0 / steps)],
-                      outputs=[total_f, total_t, next_wrench, next_normal], device=self.device)
-            wrench, normal = next_wrench, next_normal
-            oq_next, oqd_next = new(wdt, self.tree.nq), new(wdt, self.tree.nv)
-            nparts = max(self.tree.num_parts, 1)
-            wp.launch(k.substep, dim=n, device=self.device,
-                      inputs=[self.model, oq, oqd, params, body_ext, total_f, total_t, *contact[2:], dt,
-                              new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb),
-                              new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)],
-                      outputs=[oq_next, oqd_next])
-            hq_next, hqd_next = new(wdt, nu), new(wdt, nu)
-            wp.launch(h.hand_substep, dim=(n, self.scene.num_fingers),
-                      inputs=[self.hand_model, hq, hqd, tau, q_target, kp, kd, gen, dt],
-                      outputs=[hq_next, hqd_next], device=self.device)
-            hq, hqd, oq, oqd = hq_next, hqd_next, oq_next, oqd_next
-            del step_wrench
-        q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
-        wp.launch(_join, dim=(n, self.nq), inputs=[hq, oq, nu], outputs=[q_out], device=self.device)
-        wp.launch(_join, dim=(n, self.nv), inputs=[hqd, oqd, nu], outputs=[qd_out], device=self.device)
-        frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
-        wp.launch(k.frames, dim=n, inputs=[self.model, oq, oqd], outputs=frames, device=self.device)
-        pose, tips = new(wdt, self.num_bodies * 7), new(wdt, self.scene.num_fingers * 3)
-        wp.launch(h.observe, dim=n, inputs=[self.hand_model, hq, frames[0], frames[1]], outputs=[pose, tips],
-                  device=self.device)
-        return warp_in, [q_out, qd_out, wrench, normal, pose, tips]
+            pose, tips = self._zeros(n, self.num_bodies * 7), self._zeros(n, self.scene.num_fingers * 3)
+            wp.launch(h.observe, dim=n, inputs=[self.hand_model, hq, frames[0], frames[1]],
+                      outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
+        return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
+    def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
+        """A gradient-free step on one persistent trajectory (no adjoint buffers)."""
+        if getattr(self, "_fast", None) is None:
+            self._fast = ArticulatedTrajectory(self, save=False)
+        self._fast.load(inputs[0], inputs[1], inputs[2:])
+        self._fast.forward()
+        return self._fast.outputs()
 
-@wp.kernel(enable_backward=True)
-def _split(src: wp.array2d(dtype=Any), nu: int, hand: wp.array2d(dtype=Any), obj: wp.array2d(dtype=Any)):
-    """Columns [0, nu) of src to ``hand``, the rest to ``obj`` (a thread per world and column)."""
-    w, i = wp.tid()
-    if i < nu:
-        hand[w, i] = src[w, i]
-    else:
-        obj[w, i - nu] = src[w, i]
+    def _take_trajectory(self) -> tuple[ArticulatedTrajectory, int]:
+        """A trajectory with adjoint buffers from the pool and its lease: hand both back with
+        :meth:`_return_trajectory` after the backward pass, or when the step's graph is dropped without one."""
+        pool = self.__dict__.setdefault("_pool", [])
+        traj = pool.pop() if pool else ArticulatedTrajectory(self)
+        traj.lease += 1
+        return traj, traj.lease
 
-
-@wp.kernel(enable_backward=True)
-def _join(hand: wp.array2d(dtype=Any), obj: wp.array2d(dtype=Any), nu: int, out: wp.array2d(dtype=Any)):
-    w, i = wp.tid()
-    if i < nu:
-        out[w, i] = hand[w, i]
-    else:
-        out[w, i] = obj[w, i - nu]
-
-
-@wp.kernel(enable_backward=True)
-def _pad_columns(src: wp.array2d(dtype=Any), out: wp.array2d(dtype=Any)):
-    """The first columns of ``out`` from ``src`` (the planner's wrench on the base; the parts get none)."""
-    w, i = wp.tid()
-    out[w, i] = src[w, i]
+    def _return_trajectory(self, traj: ArticulatedTrajectory, lease: int) -> None:
+        if traj.lease == lease:  # not returned already for this lease (backward, then the graph's release)
+            traj.lease += 1
+            self._pool.append(traj)
 
 
 class ArticulatedStep(torch.autograd.Function):
     """One env step of an :class:`ArticulatedSimulator`. Inputs ``sim, joint_q, joint_qd, tau, q_target, kp, kd,
-    params, object_wrench``; outputs as :class:`~dexmots_rl.sim.StepOutput`. Launches are taped only when an
-    input needs a gradient."""
+    params, object_wrench``; outputs as :class:`~dexmots_rl.sim.StepOutput`. When an input needs a gradient, the
+    step runs on a pooled trajectory that keeps every substep for the reverse pass, and goes back to the pool
+    after backward (or when the graph is dropped without one)."""
 
     @staticmethod
     def forward(ctx, sim: ArticulatedSimulator, *inputs):
-        inputs = [t.detach().to(sim.dtype).clone() for t in inputs]
-        grad = any(ctx.needs_input_grad[1:])
-        ctx.tape = None
-        if grad:
-            tape = wp.Tape()
-            with tape:
-                warp_in, warp_out = sim._run_full(inputs, grad=True)
-            ctx.tape, ctx.warp_in, ctx.warp_out = tape, warp_in, warp_out
-        else:
-            warp_in, warp_out = sim._run_full(inputs, grad=False)
-        return tuple(wp.to_torch(a).clone() for a in warp_out[:4]) + (
-            wp.to_torch(warp_out[4]).view(-1, sim.num_bodies, 7).clone(),
-            wp.to_torch(warp_out[5]).view(-1, sim.scene.num_fingers, 3).clone())
+        inputs = [t.detach() if t.dtype == sim.dtype else t.detach().to(sim.dtype) for t in inputs]
+        ctx.sim = sim
+        if not any(ctx.needs_input_grad[1:]):
+            ctx.traj = None
+            return tuple(sim._replay(inputs))
+        traj, ctx.lease = sim._take_trajectory()
+        weakref.finalize(ctx, sim._return_trajectory, traj, ctx.lease)
+        traj.load(inputs[0], inputs[1], inputs[2:])
+        traj.forward()
+        ctx.traj = traj
+        return tuple(traj.outputs())
 
     @staticmethod
     def backward(ctx, *grad_outputs):
-        if ctx.tape is None:
-            raise RuntimeError("ArticulatedStep supports one backward pass per forward")
-        for arr, g in zip(ctx.warp_out, grad_outputs):
-            if g is not None:
-                wp.to_torch(arr.grad).view(g.shape).copy_(g)
-        ctx.tape.backward()
-        grads = [wp.to_torch(a.grad).clone() for a in ctx.warp_in]
-        ctx.tape.zero()
-        ctx.tape = ctx.warp_in = ctx.warp_out = None
+        if ctx.traj is None:
+            raise RuntimeError("ArticulatedStep supports one backward pass per forward: step again to "
+                               "differentiate again")
+        grads = ctx.traj.backward(grad_outputs)
+        ctx.sim._return_trajectory(ctx.traj, ctx.lease)
+        ctx.traj = None
         return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])

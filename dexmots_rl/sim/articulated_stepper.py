@@ -1,0 +1,176 @@
+"""Buffers and recorded launches for one env step of an :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`.
+
+As in sim/stepper.py, every array of an :class:`ArticulatedTrajectory` holds the whole env step: row
+``s * N + w`` is world ``w`` at substep ``s`` (the states have ``substeps + 1`` row blocks, the per-substep
+intermediates ``substeps``). Each row is written by one launch of the step, so the arrays are allocated once,
+the launches (and their adjoints, in reverse order) are recorded once with every buffer bound and replayed on
+each use, and the reverse pass reads exactly what the forward one wrote, with no ``wp.Tape``. The only buffers
+that need clearing before a step are the ones the contact kernels add into. Worlds are split into one block per
+CPU core, each block's launches run in a thread of their own (:func:`~dexmots_rl.sim.stepper.run_blocks`).
+"""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+from .stepper import prepared, run_blocks, world_blocks
+
+__all__ = ["ArticulatedTrajectory"]
+
+
+class ArticulatedTrajectory:
+    """One env step of ``sim.num_worlds`` worlds; ``save`` keeps the adjoint buffers and launches (recorded at
+    the first :meth:`backward`). Reusable: :meth:`load` the inputs, :meth:`forward`, read :meth:`outputs`."""
+
+    def __init__(self, sim, save: bool = True):
+        self.sim, self.save = sim, save
+        n, steps, z = sim.num_worlds, sim.substeps, sim._zeros
+        self.n, self.steps = n, steps
+        k, tree = sim.kernels, sim.tree
+        nu, nb, nparts = sim.nu, tree.num_bodies, max(tree.num_parts, 1)
+        rows, sub_rows = (steps + 1) * n, steps * n
+        # torch-visible buffers: the state trajectories (hand, object), the step's inputs, the observation
+        self.hq, self.hqd, self.oq, self.oqd = z(rows, nu), z(rows, nu), z(rows, tree.nq), z(rows, tree.nv)
+        self.wrench, self.normal = z(rows, 6), z(rows)
+        self.controls = [z(n, nu), z(n, nu), z(n, nu), z(n, nu), z(n, sim.num_params_packed), z(n, 6 * nb)]
+        self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
+        self._torch = [self.hq, self.hqd, self.oq, self.oqd, self.wrench, self.normal, *self.controls, self.pose,
+                       self.tips]
+
+        def new(dtype, width, count=sub_rows):
+            return wp.zeros((count, width), dtype=dtype, device=sim.device)
+
+        # per-substep intermediates: frames (x, R, c, v, w), table contact (f, t, Kvv, Kvw, Kww), the fingers'
+        # contact (gen, f, t, normal), each body's total contact (f, t), the solve's scratch
+        self.frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
+        self.table = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
+        self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
+                     wp.zeros(sub_rows, dtype=k.dtype, device=sim.device)]
+        self.total = [new(k.vec3, nb), new(k.vec3, nb)]
+        self.scratch = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb),
+                        new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
+        self.final_frames = [new(k.vec3, nb, n), new(k.mat33, nb, n), new(k.vec3, nb, n), new(k.vec3, nb, n),
+                             new(k.vec3, nb, n)]
+        self._warp = self.frames + self.table + self.hand + self.total + self.scratch + self.final_frames
+        self.accumulated = self.table + self.hand  # the contact kernels add into these
+        self.blocks = world_blocks(n, sim.device)
+        self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
+        self._reverse_cmds = None
+        self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
+
+    def _bind(self, torch_arrays=None, warp_arrays=None):
+        """The warp arrays the launches read, in :attr:`_torch` then :attr:`_warp` order."""
+        torch_arrays = self._torch if torch_arrays is None else torch_arrays
+        warp_arrays = self._warp if warp_arrays is None else warp_arrays
+        return [wp.from_torch(t) for t in torch_arrays] + list(warp_arrays)
+
+    def _launches(self, arrays, lo: int, hi: int, adjoint_arrays=None):
+        """The launches of worlds [lo, hi), recorded and :func:`prepared`: the substeps then the observation's
+        frames and observation, or, given ``adjoint_arrays`` (bound as ``arrays``), their adjoints in reverse."""
+        sim, n, k, h = self.sim, self.n, self.sim.kernels, self.sim.hand_kernels
+        dim, wdt = hi - lo, k.dtype
+        dt, weight = wdt(sim.sub_dt), wdt(1.0 / self.steps)
+        num_points = len(sim.scene.point_radius)
+
+        def launches(a, model, hand_model):
+            hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips = a[:14]
+            frames, table, hand, total, scratch, final = (a[14:19], a[19:24], a[24:28], a[28:30], a[30:38],
+                                                          a[38:43])
+
+            def rows(arr, s):  # substep s's rows of this block
+                return arr[s * n + lo: s * n + hi]
+
+            block = [c[lo:hi] for c in (tau, q_target, kp, kd, params, ext)]
+            out = []
+            for s in range(self.steps):
+                fr, tb = [rows(x, s) for x in frames], [rows(x, s) for x in table]
+                gen, hand_f, hand_t, step_normal = [rows(x, s) for x in hand]
+                state = [rows(x, s) for x in (hq, hqd, oq, oqd)]
+                nxt = [rows(x, s + 1) for x in (hq, hqd, oq, oqd)]
+                tot = [rows(x, s) for x in total]
+                out.append((k.frames, dim, [model, state[2], state[3], *fr]))
+                if k.table:
+                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, *fr, dt, *tb]))
+                out.append((h.finger_contact, (dim, num_points),
+                            [hand_model, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal]))
+                out.append((k.sum_contacts, dim, [tb[0], tb[1], hand_f, hand_t, fr[0], fr[2], rows(wrench, s),
+                                                  rows(normal, s), step_normal, weight, *tot,
+                                                  rows(wrench, s + 1), rows(normal, s + 1)]))
+                out.append((k.substep, dim, [model, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
+                                             *[rows(x, s) for x in scratch], nxt[2], nxt[3]]))
+                out.append((h.hand_substep, (dim, sim.scene.num_fingers),
+                            [hand_model, state[0], state[1], *block[:4], gen, dt, nxt[0], nxt[1]]))
+            last = [rows(x, self.steps) for x in (hq, oq, oqd)]
+            fin = [x[lo:hi] for x in final]
+            out.append((k.frames, dim, [model, last[1], last[2], *fin]))
+            out.append((h.observe, dim, [hand_model, last[0], fin[0], fin[1], pose[lo:hi], tips[lo:hi]]))
+            return out
+
+        forward = launches(arrays, sim.model, sim.hand_model)
+        if adjoint_arrays is None:
+            return [prepared(wp.launch(kernel, dim=d, inputs=args, device=sim.device, record_cmd=True))
+                    for kernel, d, args in forward]
+        adjoint = launches(adjoint_arrays, k.Model(), h.Model())  # null model adjoints: no model gradients
+        cmds = []
+        for (kernel, d, args), (_, _, adj_args) in zip(reversed(forward), reversed(adjoint)):
+            adj_args = [x if isinstance(x, wp.array) or hasattr(x, "_cls") else type(x)(0) for x in adj_args]
+            cmds.append(wp.launch(kernel, dim=d, inputs=args, adj_inputs=adj_args, adjoint=True, device=sim.device,
+                                  record_cmd=True))
+        return [prepared(cmd) for cmd in cmds]
+
+    def load(self, q, qd, controls) -> None:
+        """The step's inputs: ``q``, ``qd`` and (tau, q_target, kp, kd, packed params, object wrench)."""
+        n, nu = self.n, self.sim.nu
+        with torch.no_grad():
+            self.hq[:n].copy_(q[:, :nu])
+            self.oq[:n].copy_(q[:, nu:])
+            self.hqd[:n].copy_(qd[:, :nu])
+            self.oqd[:n].copy_(qd[:, nu:])
+            for buf, t in zip(self.controls[:5], controls[:5]):
+                buf.copy_(t)
+            self.controls[5][:, :6].copy_(controls[5])  # the planner's wrench acts on the base; the parts get none
+        for arr in self.accumulated:
+            arr.zero_()
+
+    def forward(self) -> None:
+        run_blocks(lambda lo, hi: [launch() for launch in self._forward_cmds[lo]], self.blocks)
+
+    def outputs(self) -> list[torch.Tensor]:
+        last, sim = self.steps * self.n, self.sim
+        return [torch.cat([self.hq[last:], self.oq[last:]], 1), torch.cat([self.hqd[last:], self.oqd[last:]], 1),
+                self.wrench[last:].clone(), self.normal[last:].clone(),
+                self.pose.clone().view(-1, sim.num_bodies, 7), self.tips.clone().view(-1, sim.scene.num_fingers, 3)]
+
+    def backward(self, grad_outputs) -> list[torch.Tensor]:
+        """Adjoints of (q, qd, wrench, contact force, pose, tips) -> adjoints of (joint_q, joint_qd, tau,
+        q_target, kp, kd, packed params, object wrench)."""
+        if not self.save:
+            raise RuntimeError("this trajectory was run without its adjoint buffers")
+        n, nu, last = self.n, self.sim.nu, self.steps * self.n
+        if self._reverse_cmds is None:
+            self.adj_torch = [torch.zeros_like(t) for t in self._torch]
+            self.adj_warp = [wp.zeros_like(a) for a in self._warp]
+            adjoint = self._bind(self.adj_torch, self.adj_warp)
+            self._reverse_cmds = {lo: self._launches(self._bind(), lo, hi, adjoint) for lo, hi in self.blocks}
+        for t in self.adj_torch:
+            t.zero_()
+        for a in self.adj_warp:
+            a.zero_()
+        a_hq, a_hqd, a_oq, a_oqd, a_wrench, a_normal = self.adj_torch[:6]
+        a_pose, a_tips = self.adj_torch[12:14]
+        q_grad, qd_grad, wrench_grad, normal_grad, pose_grad, tips_grad = grad_outputs
+        if q_grad is not None:
+            a_hq[last:].copy_(q_grad[:, :nu])
+            a_oq[last:].copy_(q_grad[:, nu:])
+        if qd_grad is not None:
+            a_hqd[last:].copy_(qd_grad[:, :nu])
+            a_oqd[last:].copy_(qd_grad[:, nu:])
+        for target, g in ((a_wrench[last:], wrench_grad), (a_normal[last:], normal_grad), (a_pose, pose_grad),
+                          (a_tips, tips_grad)):
+            if g is not None:
+                target.copy_(g.reshape(target.shape))
+        run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)
+        controls = self.adj_torch[6:12]
+        return [torch.cat([a_hq[:n], a_oq[:n]], 1), torch.cat([a_hqd[:n], a_oqd[:n]], 1),
+                *[c.clone() for c in controls[:5]], controls[5][:, :6].clone()]
