@@ -44,6 +44,16 @@ class ObjectGeoms:
     rot: np.ndarray
     size: np.ndarray
 
+    def bound(self, margin: float = 1.0e-3) -> np.ndarray:
+        """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
+        (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
+        radius = np.linalg.norm(self.size, axis=-1)  # box: half diagonal
+        radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
+        radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
+        reach = np.linalg.norm(self.pos, axis=-1) + radius
+        reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
+        return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)
+
 
 def object_geoms(m) -> ObjectGeoms:
     """Read the collision geoms of body ``object`` and its descendants from a compiled model."""
@@ -186,6 +196,7 @@ class ArticulatedSimulator(ObjectSimulator):
         m.tip_pos = arr(s.tip_pos, k.vec3)
         m.geom_kind = wp.array(geoms.kind, dtype=wp.int32, device=self.device)
         m.geom_pos, m.geom_rot, m.geom_size = arr(geoms.pos, k.vec3), arr(geoms.rot, k.mat33), arr(geoms.size, k.vec3)
+        m.body_bound = arr(geoms.bound(), wdt)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip = wdt(c.friction), wdt(c.slip_velocity)

@@ -46,7 +46,8 @@ class ArticulatedTrajectory:
         self.frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
         self.table = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
         self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
-                     wp.zeros(sub_rows, dtype=k.dtype, device=sim.device)]
+                     wp.zeros(sub_rows, dtype=k.dtype, device=sim.device),
+                     new(wp.int32, len(sim.scene.point_radius))]
         self.total = [new(k.vec3, nb), new(k.vec3, nb)]
         self.scratch = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb),
                         new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
@@ -73,10 +74,10 @@ class ArticulatedTrajectory:
         dt, weight = wdt(sim.sub_dt), wdt(1.0 / self.steps)
         num_points = len(sim.scene.point_radius)
 
-        def launches(a, model, hand_model):
+        def launches(a, model, hand_model, only_touching):
             hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips = a[:14]
-            frames, table, hand, total, scratch, final = (a[14:19], a[19:24], a[24:28], a[28:30], a[30:38],
-                                                          a[38:43])
+            frames, table, hand, total, scratch, final = (a[14:19], a[19:24], a[24:29], a[29:31], a[31:39],
+                                                          a[39:44])
 
             def rows(arr, s):  # substep s's rows of this block
                 return arr[s * n + lo: s * n + hi]
@@ -85,7 +86,7 @@ class ArticulatedTrajectory:
             out = []
             for s in range(self.steps):
                 fr, tb = [rows(x, s) for x in frames], [rows(x, s) for x in table]
-                gen, hand_f, hand_t, step_normal = [rows(x, s) for x in hand]
+                gen, hand_f, hand_t, step_normal, touching = [rows(x, s) for x in hand]
                 state = [rows(x, s) for x in (hq, hqd, oq, oqd)]
                 nxt = [rows(x, s + 1) for x in (hq, hqd, oq, oqd)]
                 tot = [rows(x, s) for x in total]
@@ -93,7 +94,8 @@ class ArticulatedTrajectory:
                 if k.table:
                     out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, *fr, dt, *tb]))
                 out.append((h.finger_contact, (dim, num_points),
-                            [hand_model, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal]))
+                            [hand_model, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
+                             only_touching]))
                 out.append((k.sum_contacts, dim, [tb[0], tb[1], hand_f, hand_t, fr[0], fr[2], rows(wrench, s),
                                                   rows(normal, s), step_normal, weight, *tot,
                                                   rows(wrench, s + 1), rows(normal, s + 1)]))
@@ -107,11 +109,13 @@ class ArticulatedTrajectory:
             out.append((h.observe, dim, [hand_model, last[0], fin[0], fin[1], pose[lo:hi], tips[lo:hi]]))
             return out
 
-        forward = launches(arrays, sim.model, sim.hand_model)
         if adjoint_arrays is None:
             return [prepared(wp.launch(kernel, dim=d, inputs=args, device=sim.device, record_cmd=True))
-                    for kernel, d, args in forward]
-        adjoint = launches(adjoint_arrays, k.Model(), h.Model())  # null model adjoints: no model gradients
+                    for kernel, d, args in launches(arrays, sim.model, sim.hand_model, 0)]
+        # the finger contact's adjoint skips the spheres that touched nothing (their adjoint is zero: most of
+        # them, and most of the reverse pass's time otherwise)
+        forward = launches(arrays, sim.model, sim.hand_model, 1)
+        adjoint = launches(adjoint_arrays, k.Model(), h.Model(), 0)  # null model adjoints: no model gradients
         cmds = []
         for (kernel, d, args), (_, _, adj_args) in zip(reversed(forward), reversed(adjoint)):
             adj_args = [x if isinstance(x, wp.array) or hasattr(x, "_cls") else type(x)(0) for x in adj_args]

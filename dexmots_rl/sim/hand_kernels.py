@@ -69,6 +69,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         geom_pos: wp.array2d(dtype=vec3)  # [B, G] m, body frame
         geom_rot: wp.array2d(dtype=mat33)  # [B, G] geom -> body
         geom_size: wp.array2d(dtype=vec3)  # [B, G] box: half sizes; sphere: (r); capsule, cylinder: (r, half length)
+        body_bound: wp.array(dtype=dtype)  # [B] m: a sphere about the body origin holding all its geoms (with margin)
         gravity: vec3
         ke: dtype  # N/m: contact stiffness
         kd: dtype  # s/m: Hunt-Crossley damping
@@ -187,6 +188,9 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         contact_f: wp.array2d(dtype=vec3),  # [N, B] out (atomic): contact force on each object body (N)
         contact_t: wp.array2d(dtype=vec3),  # [N, B] out (atomic): its torque about the body's com (N m)
         normal_sum: wp.array(dtype=dtype),  # [N] out (atomic): the summed normal force magnitudes (N)
+        touching: wp.array2d(dtype=wp.int32),  # [N, S] out: 1 where the sphere is within the cutoff of a body
+        only_touching: int,  # 1: return at once where ``touching`` is 0 (the adjoint launch: such a sphere
+        # contributed nothing, so its adjoint is zero)
     ):
         w, s = wp.tid()
         link = s / P  # f * J + k of the sphere's link
@@ -195,6 +199,9 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         rad = m.point_radius[s]
         if rad <= dtype(0.0):
             return
+        if only_touching != 0:
+            if touching[w, s] == 0:
+                return
         # the chain up to the sphere's link: joint origins and axes, the link's frame
         R = m.base_rot[f]
         x = m.base_pos[f]
@@ -222,32 +229,35 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         gen_f = vecJ()
         for b in range(B):
             xb = body_x[w, b]
-            Rb = body_R[w, b]
-            pl = wp.transpose(Rb) * (p - xb)
-            best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-            for g in range(G):
-                kind = m.geom_kind[b, g]
-                if kind != GEOM_NONE:
-                    Rg = m.geom_rot[b, g]
-                    dn = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
-                    if dn[0] < best[0]:
-                        nb = Rg * vec3(dn[1], dn[2], dn[3])
-                        best = vec4(dn[0], nb[0], nb[1], nb[2])
-            pen = rad - best[0]
-            if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
-                cp = p - n * rad
-                v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
-                v_rel = vp - v_body
-                vn = wp.dot(v_rel, n)
-                fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
-                vt = v_rel - vn * n
-                ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
-                fc = fn * n + ft  # on the finger
-                gen_f = gen_f + wp.transpose(Jp) * fc
-                wp.atomic_add(contact_f, w, b, -fc)
-                wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
-                wp.atomic_add(normal_sum, w, fn)
+            # no geom of body b within the cutoff: skip its distances (their result would go unused)
+            if wp.length(p - xb) < m.body_bound[b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
+                Rb = body_R[w, b]
+                pl = wp.transpose(Rb) * (p - xb)
+                best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
+                for g in range(G):
+                    kind = m.geom_kind[b, g]
+                    if kind != GEOM_NONE:
+                        Rg = m.geom_rot[b, g]
+                        dn = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
+                        if dn[0] < best[0]:
+                            nb = Rg * vec3(dn[1], dn[2], dn[3])
+                            best = vec4(dn[0], nb[0], nb[1], nb[2])
+                pen = rad - best[0]
+                if pen > dtype(-CONTACT_CUTOFF) / m.beta:
+                    touching[w, s] = 1
+                    n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                    cp = p - n * rad
+                    v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
+                    v_rel = vp - v_body
+                    vn = wp.dot(v_rel, n)
+                    fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+                    vt = v_rel - vn * n
+                    ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+                    fc = fn * n + ft  # on the finger
+                    gen_f = gen_f + wp.transpose(Jp) * fc
+                    wp.atomic_add(contact_f, w, b, -fc)
+                    wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
+                    wp.atomic_add(normal_sum, w, fn)
         for k in range(J):
             if k <= k_link:
                 wp.atomic_add(gen, w, f * J + k, gen_f[k])
