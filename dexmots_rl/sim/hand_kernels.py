@@ -174,6 +174,26 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 n = axial
         return vec4(d, n[0], n[1], n[2])
 
+    @wp.func
+    def nearest_geom(m: Model, b: int, pl: vec3):
+        """Index of body b's geom nearest to point pl (body frame): the first of the smallest signed distances
+        below 1e6 m; -1 if none."""
+        best_d = dtype(1.0e6)
+        best_g = int(-1)
+        for g in range(G):
+            kind = m.geom_kind[b, g]
+            if kind != GEOM_NONE:
+                Rg = m.geom_rot[b, g]
+                d = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))[0]
+                if d < best_d:
+                    best_d = d
+                    best_g = g
+        return best_g
+
+    @wp.func_grad(nearest_geom)
+    def adj_nearest_geom(m: Model, b: int, pl: vec3, adj_ret: int):
+        pass  # an index: nothing to differentiate (the reverse pass skips the G distances' adjoints)
+
     @wp.kernel(module="unique", enable_backward=True)
     def finger_contact(
         m: Model,
@@ -234,14 +254,12 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 Rb = body_R[w, b]
                 pl = wp.transpose(Rb) * (p - xb)
                 best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                for g in range(G):
-                    kind = m.geom_kind[b, g]
-                    if kind != GEOM_NONE:
-                        Rg = m.geom_rot[b, g]
-                        dn = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
-                        if dn[0] < best[0]:
-                            nb = Rg * vec3(dn[1], dn[2], dn[3])
-                            best = vec4(dn[0], nb[0], nb[1], nb[2])
+                g = nearest_geom(m, b, pl)  # found without an adjoint; only the nearest geom's distance has one
+                if g >= 0:
+                    Rg = m.geom_rot[b, g]
+                    dn = geom_distance(m.geom_kind[b, g], m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
+                    nb = Rg * vec3(dn[1], dn[2], dn[3])
+                    best = vec4(dn[0], nb[0], nb[1], nb[2])
                 pen = rad - best[0]
                 if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                     touching[w, s] = 1
