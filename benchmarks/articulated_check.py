@@ -3,8 +3,11 @@
     python benchmarks/articulated_check.py --objects spray_bottle_a drawer_a scissors_a --num-envs 256
 
 Prints one JSON line per object: our env-steps/s (forward, no gradients; and forward + backward), MuJoCo's
-(``mj_step`` over every world in turn, the same substeps of the same timestep, its own contact on the same
-collision geometry), their ratio, and the cold kernel compile seconds of the first step.
+(``mj_step`` over every world in turn on one core, the same substeps of the same timestep, its own contact on
+the same collision geometry), their ratio, the cost of a forward + backward step in forward steps, the CPU
+threads our step used (``DEXMOTS_CPU_THREADS``, default: the cores this process may use), and the kernel
+compile seconds of the first step (cold only on an empty warp cache). Each rate is the best of ``--repeats``
+rounds.
 """
 
 from __future__ import annotations
@@ -18,21 +21,27 @@ from pathlib import Path
 import torch
 
 
-def _rate(fn, steps: int, worlds: int) -> float:
+def _rate(fn, steps: int, worlds: int, repeats: int) -> float:
+    """Env-steps per second: the best of ``repeats`` timed rounds of ``steps`` calls (on a shared machine the
+    best round is the one least disturbed by other jobs)."""
     fn()  # warm
-    start = time.perf_counter()
-    for _ in range(steps):
-        fn()
-    return steps * worlds / (time.perf_counter() - start)
+    best = 0.0
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(steps):
+            fn()
+        best = max(best, steps * worlds / (time.perf_counter() - start))
+    return best
 
 
-def measure(name: str, worlds: int, steps: int) -> dict:
+def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
     import mujoco
 
     from dexmots_rl.assets.hand_scene import hand_object_scene_xml
     from dexmots_rl.assets.objects import load_object
     from dexmots_rl.sim import load_scene
     from dexmots_rl.sim.articulated import ArticulatedSimulator
+    from dexmots_rl.sim.stepper import cpu_threads
 
     folder = Path(tempfile.mkdtemp())
     path = folder / "scene.xml"
@@ -59,8 +68,8 @@ def measure(name: str, worlds: int, steps: int) -> dict:
         out = sim.step(q, qd, c, params)
         out.joint_q.sum().backward()
 
-    ours = _rate(forward, steps, worlds)
-    ours_grad = _rate(forward_backward, max(2, steps // 4), worlds)
+    ours = _rate(forward, steps, worlds, repeats)
+    ours_grad = _rate(forward_backward, max(2, steps // 4), worlds, repeats)
     m = mujoco.MjModel.from_xml_path(str(path))
     datas = [mujoco.MjData(m) for _ in range(worlds)]
 
@@ -68,9 +77,10 @@ def measure(name: str, worlds: int, steps: int) -> dict:
         for d in datas:
             mujoco.mj_step(m, d, nstep=sim.substeps)
 
-    theirs = _rate(mujoco_step, max(2, steps // 4), worlds)
+    theirs = _rate(mujoco_step, max(2, steps // 4), worlds, repeats)
     return {"object": name, "worlds": worlds, "ours_forward": round(ours), "ours_forward_backward": round(ours_grad),
-            "mujoco": round(theirs), "ratio": round(ours / theirs, 2), "compile_s": round(compile_s, 1)}
+            "mujoco": round(theirs), "ratio": round(ours / theirs, 2),
+            "backward_cost": round(ours / ours_grad, 2), "threads": cpu_threads(), "compile_s": round(compile_s, 1)}
 
 
 def main() -> None:
@@ -78,9 +88,10 @@ def main() -> None:
     parser.add_argument("--objects", nargs="+", default=["spray_bottle_a", "drawer_a", "scissors_a"])
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=3, help="timed rounds per figure; the best is reported")
     args = parser.parse_args()
     for name in args.objects:
-        print(json.dumps(measure(name, args.num_envs, args.steps)), flush=True)
+        print(json.dumps(measure(name, args.num_envs, args.steps, args.repeats)), flush=True)
 
 
 if __name__ == "__main__":

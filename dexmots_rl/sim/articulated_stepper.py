@@ -153,8 +153,13 @@ class ArticulatedTrajectory:
             raise RuntimeError("this trajectory was run without its adjoint buffers")
         n, nu, last = self.n, self.sim.nu, self.steps * self.n
         if self._reverse_cmds is None:
-            self.adj_torch = [torch.zeros_like(t) for t in self._torch]
-            self.adj_warp = [wp.zeros_like(a) for a in self._warp]
+            # one set of adjoint buffers serves every trajectory of the simulator (reverse passes run one at a
+            # time, each zeroes them first): half the memory of a pool of taped steps
+            shared = self.sim.__dict__.get("_adjoint_buffers")
+            if shared is None:
+                shared = ([torch.zeros_like(t) for t in self._torch], [wp.zeros_like(a) for a in self._warp])
+                self.sim._adjoint_buffers = shared
+            self.adj_torch, self.adj_warp = shared
             adjoint = self._bind(self.adj_torch, self.adj_warp)
             self._reverse_cmds = {lo: self._launches(self._bind(), lo, hi, adjoint) for lo, hi in self.blocks}
         for t in self.adj_torch:
