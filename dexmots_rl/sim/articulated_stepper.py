@@ -6,7 +6,12 @@ intermediates ``substeps``). Each row is written by one launch of the step, so t
 the launches (and their adjoints, in reverse order) are recorded once with every buffer bound and replayed on
 each use, and the reverse pass reads exactly what the forward one wrote, with no ``wp.Tape``. The only buffers
 that need clearing before a step are the ones the contact kernels add into. Worlds are split into one block per
-CPU core, each block's launches run in a thread of their own (:func:`~dexmots_rl.sim.stepper.run_blocks`).
+CPU core, each block's launches run in a thread of their own (:func:`~dexmots_rl.sim.stepper.run_blocks`); on a
+GPU there is one block and each recorded launch replays through ``Launch.launch``.
+
+The reverse pass is mostly the finger contact's adjoint; two things keep it small without changing a result:
+the adjoint launch returns at once for a sphere that touched nothing in the forward pass (the forward launch
+marks the others), and only each body's nearest geom is differentiated (hand_kernels.py).
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ class ArticulatedTrajectory:
             return wp.zeros((count, width), dtype=dtype, device=sim.device)
 
         # per-substep intermediates: frames (x, R, c, v, w), table contact (f, t, Kvv, Kvw, Kww), the fingers'
-        # contact (gen, f, t, normal), each body's total contact (f, t), the solve's scratch
+        # contact (gen, f, t, normal, which spheres touched), each body's total contact (f, t), the solve's scratch
         self.frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
         self.table = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
         self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
