@@ -21,12 +21,13 @@ from pathlib import Path
 import torch
 
 
-def _rate(fn, steps: int, worlds: int, repeats: int) -> float:
-    """Env-steps per second: the best of ``repeats`` timed rounds of ``steps`` calls (on a shared machine the
-    best round is the one least disturbed by other jobs)."""
+def _rate(fn, steps: int, worlds: int, repeats: int, reset=lambda: None) -> float:
+    """Env-steps per second: the best of ``repeats`` timed rounds of ``steps`` calls, each round from ``reset()``
+    (on a shared machine the best round is the one least disturbed by other jobs)."""
     fn()  # warm
     best = 0.0
     for _ in range(repeats):
+        reset()
         start = time.perf_counter()
         for _ in range(steps):
             fn()
@@ -53,7 +54,11 @@ def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
     with torch.no_grad():
         sim.step(q, qd, ctrl, params)
     compile_s = time.perf_counter() - start
-    state = {"q": q, "qd": qd}
+    # both of ours roll out the same states from the initial one (the cost of a step depends on its contacts)
+    state = {}
+
+    def reset():
+        state["q"], state["qd"] = q, qd
 
     def forward():
         with torch.no_grad():
@@ -65,11 +70,13 @@ def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
     def forward_backward():
         c = sim.zero_control()
         c.tau = tau
-        out = sim.step(q, qd, c, params)
+        out = sim.step(state["q"], state["qd"], c, params)
         out.joint_q.sum().backward()
+        state["q"], state["qd"] = out.joint_q.detach(), out.joint_qd.detach()
 
-    ours = _rate(forward, steps, worlds, repeats)
-    ours_grad = _rate(forward_backward, max(2, steps // 4), worlds, repeats)
+    reset()
+    ours = _rate(forward, steps, worlds, repeats, reset)
+    ours_grad = _rate(forward_backward, steps, worlds, repeats, reset)
     m = mujoco.MjModel.from_xml_path(str(path))
     datas = [mujoco.MjData(m) for _ in range(worlds)]
 
