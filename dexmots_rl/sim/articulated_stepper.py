@@ -159,7 +159,7 @@ class ArticulatedTrajectory:
         n, nu, last = self.n, self.sim.nu, self.steps * self.n
         if self._reverse_cmds is None:
             # one set of adjoint buffers serves every trajectory of the simulator (reverse passes run one at a
-            # time, each zeroes them first): half the memory of a pool of taped steps
+            # time, each zeroes them first), so a pool of N steps in flight holds N + 1 sets of buffers, not 2 N
             shared = self.sim.__dict__.get("_adjoint_buffers")
             if shared is None:
                 shared = ([torch.zeros_like(t) for t in self._torch], [wp.zeros_like(a) for a in self._warp])
