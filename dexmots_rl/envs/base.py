@@ -26,6 +26,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
+from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
 from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
@@ -90,7 +91,9 @@ class DexEnv(EnvBase):
             from ..sim import load_scene
 
             scene = load_scene(self.asset_path())
-        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
+        # an articulated object (a base with moving parts on a table) has its own simulator, same interface
+        simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
+        self.sim = simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
                              contact=self.contact_params if contact is None else contact, adjoint_clip=adjoint_clip)
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
@@ -179,6 +182,12 @@ class DexEnv(EnvBase):
         if with_wrench:
             parts.append(ref["joint_torque"] if articulated else ref["wrench"])
         return torch.cat(parts, -1)
+
+    def goal_window_widths(self) -> tuple[int, int]:
+        """``(D, W)``: per reference step, the object coordinates and the wrench entries :meth:`goal_window`
+        writes (an articulation's angles and generalised forces, or a free body's pose and force + torque)."""
+        scene = self.sim.scene
+        return (scene.object_nq, scene.object_nv) if scene.articulated else (7, 6)
 
     def mirror_maps(self):
         """``(maps, action)`` of a mirror-symmetric task (:mod:`..mirror`): the reflection of each policy entry

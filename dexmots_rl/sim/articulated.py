@@ -142,7 +142,10 @@ class ArticulatedSimulator(ObjectSimulator):
 
     def __init__(self, scene: ArticulatedScene, num_worlds: int, device: str = "cpu",
                  dtype: torch.dtype = torch.float32, substeps: int = 16, dt: float | None = None,
-                 contact: ContactParams | None = None, table: TableContact | None = None):
+                 contact: ContactParams | None = None, table: TableContact | None = None,
+                 adjoint_clip: float | None = None):
+        if adjoint_clip is not None:
+            raise ValueError("adjoint_clip is not supported for articulated-object scenes (use None)")
         sub_dt = scene.timestep if dt is None else dt / substeps
         super().__init__(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps, sub_dt=sub_dt,
                          table=table, gravity=scene.gravity)
