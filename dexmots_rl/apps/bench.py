@@ -5,10 +5,12 @@
     dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
+    dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate | --all)   # kernels to PTX, no GPU
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput` and :mod:`.bench_grad`.
+:mod:`.bench_throughput`, :mod:`.bench_grad` and :mod:`.bench_compile`; ``compile`` always prints JSON
+and exits non-zero when a kernel failed to compile.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import logging
 import statistics
 import sys
 
+from ..envs import list_tasks
 from .bench_setup import bench_tasks
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
@@ -80,6 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train once per seed and report the mean and sample s.d. of the success rate")
     p.add_argument("--run-dir", default=None, help="default: runs/bench_<task>_<algo>_seed<seed>")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides, e.g. algo.iterations=300")
+
+    p = sub.add_parser("compile", help="compile every kernel of a task's scene ahead of time (CUDA: no GPU needed)")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--task", choices=list_tasks())
+    which.add_argument("--all", action="store_true", help="every registered task")
+    p.add_argument("--device", default="cuda", choices=["cuda", "cpu"])
+    p.add_argument("--arch", type=int, default=90, help="CUDA compute capability, e.g. 80 (A100), 90 (H100/H200)")
+    p.add_argument("--dtypes", nargs="+", default=["float32"], choices=["float32", "float64"])
+    p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
     return parser
 
 
@@ -130,6 +143,10 @@ def _execute(args: argparse.Namespace) -> dict:
                                   args.settle_steps, args.chunk_steps, obs=args.obs)
         if args.bench == "train":
             return _train_bench(args)
+        if args.bench == "compile":
+            from .bench_compile import run_compile
+
+            return run_compile(list_tasks() if args.all else args.task, args.device, args.arch, args.dtypes)
         if args.bench == "pipeline":
             from .bench_pipeline import run_pipeline
 
@@ -184,6 +201,8 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     result = _execute(args)
     print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
+    if result.get("ok") is False:  # dexmots-bench compile: a kernel failed (named on stderr and in the JSON)
+        sys.exit(1)
 
 
 if __name__ == "__main__":
