@@ -21,7 +21,15 @@ import time
 
 import warp as wp
 
-__all__ = ["compile_kernels", "compile_renderer", "simulator_kernels"]
+__all__ = ["compile_kernels", "compile_renderer", "simulator_kernels", "warp_versions"]
+
+
+def warp_versions() -> dict:
+    """warp's version and, where a CUDA driver is present, the driver's and warp's CUDA toolkit's."""
+    driver = wp.get_cuda_driver_version() if wp.is_cuda_available() else None
+    toolkit = wp.get_cuda_toolkit_version()
+    as_text = lambda v: None if not v else ".".join(str(x) for x in v) if isinstance(v, tuple) else str(v)  # noqa: E731
+    return {"warp": wp.__version__, "cuda_driver": as_text(driver), "warp_cuda_toolkit": as_text(toolkit)}
 
 
 def simulator_kernels(sim) -> dict[str, object]:
@@ -55,13 +63,17 @@ def _compile_module(module, label: str, device: str, arch: int | None) -> dict:
     row = {"kernel": label, "module": module.name}
     try:
         with _native_stderr(log):
-            if device == "cuda":
+            if device == "cuda" and arch is not None:
                 paths = wp.compile_aot_module(module, arch=arch, use_ptx=True)
-            else:
-                paths = wp.compile_aot_module(module, device="cpu")
+            else:  # this machine's CPU or GPU: built and loaded exactly as a run loads it (same cache entry)
+                wp.load_module(module, device=device)
+                paths = None
     except Exception as error:  # the compiler's failure, reported per kernel (the caller decides the exit code)
         message = "\n".join(part for part in (str(error), (log[0] if log else "").strip()) if part)
         row.update(seconds=time.perf_counter() - start, cached=False, ok=False, error=message)
+        return row
+    if paths is None:
+        row.update(seconds=time.perf_counter() - start, cached=None, ok=True)
         return row
     artifact = paths[-1]
     row.update(seconds=time.perf_counter() - start, cached=os.path.getmtime(artifact) < wall_start, ok=True,
@@ -76,7 +88,8 @@ def _check_device(device: str) -> None:
 
 def compile_kernels(sim, device: str = "cuda", arch: int | None = 90) -> list[dict]:
     """Compile the modules of ``sim``'s kernels for ``device`` (``"cuda"``: PTX for compute capability
-    ``arch``, no GPU needed; ``"cpu"``: the host build). Returns one row per module: ``kernel`` (its
+    ``arch``, no GPU needed, or with ``arch=None`` this machine's GPU's own build; ``"cpu"``: the host
+    build; both of these are loaded as a run loads them, so the run finds them in the cache). Returns one row per module: ``kernel`` (its
     kernels' names), ``module``, ``seconds``, ``cached``, ``ok``, and ``error`` (the exception and the
     compiler's log) or ``artifact`` (the compiled file)."""
     _check_device(device)
