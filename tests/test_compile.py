@@ -44,6 +44,13 @@ def test_a_failing_compile_names_the_kernel_and_the_compiler_message(monkeypatch
     assert printed["task"] == "screw_claw" and printed["ok"] is False
 
 
+def test_several_tasks_compile_side_by_side_into_one_result():
+    result = bench.run(["compile", "--device", "cpu", "--task", "screw_claw", "screw_claw", "--jobs", "2", "--quiet"])
+    assert result["ok"] and [t["task"] for t in result["tasks"]] == ["screw_claw", "screw_claw"]
+    for task in result["tasks"]:
+        assert {r["kernel"] for r in task["kernels"]} >= {"substep", "observe"}
+
+
 def test_compile_rejects_an_unknown_task():
     with pytest.raises(ValueError, match="not registered"):
         run_compile(["screw_claw", "no_such_task"], "cuda", 90)

@@ -5,7 +5,7 @@
     dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
-    dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate | --all)   # kernels to PTX, no GPU
+    dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
     dexmots-bench gpu --out gpu_check.json   # every figure on one GPU in one JSON file (scripts/gpu_check.sh)
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
@@ -87,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("compile", help="compile every kernel of a task's scene ahead of time (CUDA: no GPU needed)")
     which = p.add_mutually_exclusive_group(required=True)
-    which.add_argument("--task", choices=list_tasks())
+    which.add_argument("--task", nargs="+", choices=list_tasks(), help="one task or several")
     which.add_argument("--all", action="store_true", help="every registered task")
     p.add_argument("--device", default="cuda", choices=["cuda", "cpu"])
     p.add_argument("--arch", type=int, default=90, help="CUDA compute capability, e.g. 80 (A100), 90 (H100/H200); "
@@ -179,8 +179,8 @@ def _execute(args: argparse.Namespace) -> dict:
         if args.bench == "compile":
             from .bench_compile import run_compile
 
-            return run_compile(list_tasks() if args.all else args.task, args.device, args.arch, args.dtypes,
-                               args.jobs)
+            tasks = list_tasks() if args.all else args.task[0] if len(args.task) == 1 else args.task
+            return run_compile(tasks, args.device, args.arch, args.dtypes, args.jobs)
         if args.bench == "pipeline":
             from .bench_pipeline import run_pipeline
 
