@@ -22,6 +22,7 @@ cut short keeps what it measured):
 
 from __future__ import annotations
 
+import concurrent.futures
 import datetime
 import logging
 import os
@@ -161,11 +162,19 @@ def run_gpu_check(device: str = "cuda", tasks=("screw_claw", "allegro_rotate", "
     jobs = compile_jobs or min(8, os.cpu_count() or 1)
     need = list(dict.fromkeys([*tasks, "screw_claw"]))
     # the device's float32 kernels of every task, its float64 ones of the claw (grad, agreement), the CPU's
-    # float64 claw (agreement); compiled side by side
-    report.section("compile", lambda: [
-        run_compile(need, "cuda" if cuda else "cpu", 0 if cuda else None, ("float32",), jobs),
-        run_compile(["screw_claw"], "cuda" if cuda else "cpu", 0 if cuda else None, ("float64",), jobs),
-        *([run_compile(["screw_claw"], "cpu", None, ("float64",), 1)] if cuda else [])])
+    # float64 claw (agreement): all compiled side by side, each (task, float type) in a process of its own
+    target, arch = ("cuda", 0) if cuda else ("cpu", None)
+    batches = [(need, target, arch, ("float32",), jobs), (["screw_claw"], target, arch, ("float64",), jobs)]
+    if cuda:
+        batches.append((["screw_claw"], "cpu", None, ("float64",), jobs))
+
+    def compile_all():
+        if jobs <= 1:
+            return [run_compile(*batch) for batch in batches]
+        with concurrent.futures.ThreadPoolExecutor(len(batches)) as pool:  # each batch runs its own processes
+            return list(pool.map(lambda batch: run_compile(*batch), batches))
+
+    report.section("compile", compile_all)
 
     def throughput():
         rows = [run_throughput(t, list(num_envs), device, min_time=min_time, mujoco=False) for t in tasks]
