@@ -43,3 +43,15 @@ def test_gpu_check_script_runs_end_to_end_on_cpu_and_writes_every_figure(tmp_pat
                                          "rgb_steps_per_s", "ahac_screw_claw_success"}
     assert all(math.isfinite(s) for s in written["seconds"].values())
     assert result["train"]["success_rate"] == train["success_rate"]
+
+
+def test_gpu_check_without_a_gpu_is_one_clear_error():
+    import pytest
+    import torch
+
+    from dexmots_rl.apps import bench
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    with pytest.raises(SystemExit, match="device 'cuda' is not available"):
+        bench.main(["gpu", "--device", "cuda"])

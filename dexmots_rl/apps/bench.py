@@ -233,6 +233,14 @@ def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: print the result as JSON (``--json``) or as a table."""
     args = build_parser().parse_args(argv)
+    # a GPU this machine lacks: one line, before any work (compile builds for a CUDA arch without one)
+    if getattr(args, "device", "cpu") != "cpu" and not (args.bench == "compile" and args.arch):
+        from ..sim.simulator import check_device
+
+        try:
+            check_device(args.device)
+        except ValueError as error:
+            raise SystemExit(f"dexmots-bench {args.bench}: {error}") from None
     result = _execute(args)
     print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
     if result.get("ok") is False:  # dexmots-bench compile: a kernel failed (named on stderr and in the JSON)
