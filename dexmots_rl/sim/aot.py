@@ -2,8 +2,9 @@
 
 Warp generates one source per module and compiles it with NVRTC (CUDA) or clang (CPU); a module's
 generated code holds every kernel's forward and adjoint, so compiling it checks both. The artifacts
-(PTX for CUDA) go to warp's kernel cache (``WARP_CACHE_PATH``, default ``~/.cache/warp/<version>``)
-under the same names a GPU run looks up, so a second compile of an unchanged module is a file check.
+go to warp's kernel cache (``WARP_CACHE_PATH``, default ``~/.cache/warp/<version>``), so a second compile
+of an unchanged module is a file check: PTX for a given compute capability (no GPU needed), or the build
+this machine's CPU or GPU loads, compiled and loaded exactly as a run does (a run then finds it cached).
 
 :func:`compile_kernels` compiles the modules of a :class:`~dexmots_rl.sim.Simulator`'s kernels (the
 substep and the observation, specialised for its scene and float type), :func:`compile_renderer`
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import tempfile
 import time
 
@@ -26,10 +28,14 @@ __all__ = ["compile_kernels", "compile_renderer", "simulator_kernels", "warp_ver
 
 def warp_versions() -> dict:
     """warp's version and, where a CUDA driver is present, the driver's and warp's CUDA toolkit's."""
+    def as_text(version):
+        if not version:
+            return None
+        return ".".join(str(x) for x in version) if isinstance(version, tuple) else str(version)
+
     driver = wp.get_cuda_driver_version() if wp.is_cuda_available() else None
-    toolkit = wp.get_cuda_toolkit_version()
-    as_text = lambda v: None if not v else ".".join(str(x) for x in v) if isinstance(v, tuple) else str(v)  # noqa: E731
-    return {"warp": wp.__version__, "cuda_driver": as_text(driver), "warp_cuda_toolkit": as_text(toolkit)}
+    return {"warp": wp.__version__, "cuda_driver": as_text(driver),
+            "warp_cuda_toolkit": as_text(wp.get_cuda_toolkit_version())}
 
 
 def simulator_kernels(sim) -> dict[str, object]:
@@ -40,8 +46,6 @@ def simulator_kernels(sim) -> dict[str, object]:
 @contextlib.contextmanager
 def _native_stderr(sink: list[str]):
     """Redirect file descriptor 2 (where NVRTC and clang print their logs) into ``sink[0]``."""
-    import sys
-
     sys.stderr.flush()
     saved = os.dup(2)
     with tempfile.TemporaryFile(mode="w+b") as tmp:
