@@ -43,6 +43,12 @@ class DexEnv(EnvBase):
     A task subclass sets ``asset`` (its MJCF in :mod:`dexmots_rl.assets`), implements the abstract hooks
     and is registered with its config class (:func:`~dexmots_rl.envs.registry.register_task`); it is
     built from a config: ``TaskEnv(config, num_envs=...)`` (``make_env`` does this).
+
+    ``sync_free`` (on a CUDA device always; settable, the tests set it on CPU): the step, reward, reset and
+    observation never read a tensor's value on the host (no ``.item()``, no Python branch on a tensor), so
+    a GPU step never waits for the GPU. Its costs: every step draws the fresh state a blown-up world would
+    be reset to (on CPU it is drawn only when a world blew up), and a non-finite action is not rejected
+    with an error; it blows its world up, which is reset and counted like any other blow-up.
     """
 
     batch_locked = True
@@ -95,6 +101,7 @@ class DexEnv(EnvBase):
         simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
         self.sim = simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
                              contact=self.contact_params if contact is None else contact, adjoint_clip=adjoint_clip)
+        self.sync_free = device.type == "cuda"  # see the class docstring
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
         self.param_ranges = self._param_ranges()
@@ -293,7 +300,7 @@ class DexEnv(EnvBase):
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(n, 1)
-        if mask is not None and not bool(mask.all()):
+        if mask is not None and (self.sync_free or not bool(mask.all())):
             # partial reset: keep every entry of the worlds that are not reset
             for key in list(obs):
                 old = tensordict.get(key, None)
@@ -324,7 +331,7 @@ class DexEnv(EnvBase):
         action = tensordict.get("action", None)
         if action is None:
             raise KeyError("env.step: the input TensorDict has no 'action'")
-        validate_action(action, self.num_envs, self.actions.action_dim)
+        validate_action(action, self.num_envs, self.actions.action_dim, values=not self.sync_free)
         present = tensordict.keys(True)
         missing = [key for key in self._state_keys() if key not in present]
         if missing:
@@ -355,7 +362,7 @@ class DexEnv(EnvBase):
         failures = tensordict.get(("info", "sim_failures")).clone()
         blown = ~(torch.isfinite(out.joint_q).all(-1, keepdim=True) & torch.isfinite(out.joint_qd).all(-1, keepdim=True))
         blown |= out.joint_qd.detach().abs().amax(-1, keepdim=True).nan_to_num(float("inf")) > MAX_JOINT_SPEED
-        if bool(blown.any()):
+        if self.sync_free or bool(blown.any()):
             # reset the worlds that blew up so that no NaN reaches the batch; count them
             fresh = self._initial_obs()
             fresh.update({("reward_terms", name): torch.zeros_like(terms[name]) for name in self.reward_terms})
