@@ -37,13 +37,15 @@ def compile_task(task: str, device: str = "cuda", arch: int | None = 90, dtypes=
     ``render``, the renderer's; the result dict of one task."""
     from ..sim import Simulator
     from ..sim.aot import compile_kernels, compile_renderer
+    from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
 
     start = time.perf_counter()
     scene, law = task_scene(task), task_contact(task)
     rows = []
     for name in dtypes:
         # a one-world CPU simulator builds the task's kernel namespace (nothing is compiled or launched)
-        sim = Simulator(scene, 1, device="cpu", dtype=DTYPES[name], contact=law)
+        simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
+        sim = simulator(scene, 1, device="cpu", dtype=DTYPES[name], contact=law)
         rows += [dict(row, dtype=name) for row in compile_kernels(sim, device, arch)]
     if render:
         rows.append(dict(compile_renderer(device, arch), dtype="float32"))

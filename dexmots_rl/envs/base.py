@@ -70,6 +70,13 @@ class DexEnv(EnvBase):
 
         return asset_path(cls.asset)
 
+    @classmethod
+    def task_scene(cls, config):
+        """The scene this task simulates for ``config`` (default: its MJCF, :attr:`asset`)."""
+        from ..sim import load_scene
+
+        return load_scene(cls.asset_path())
+
     def __init__(
         self,
         config,
@@ -94,9 +101,7 @@ class DexEnv(EnvBase):
         device = check_device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         if scene is None:
-            from ..sim import load_scene
-
-            scene = load_scene(self.asset_path())
+            scene = self.task_scene(config)
         # an articulated object (a base with moving parts on a table) has its own simulator, same interface
         simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
         self.sim = simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,

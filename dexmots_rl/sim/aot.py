@@ -39,8 +39,10 @@ def warp_versions() -> dict:
 
 
 def simulator_kernels(sim) -> dict[str, object]:
-    """Every warp kernel of a simulator's kernel namespace, by attribute name (``substep``, ``observe``)."""
-    return {name: value for name, value in vars(sim.kernels).items() if isinstance(value, wp.Kernel)}
+    """Every warp kernel of a simulator's kernel namespaces (an articulated scene's hand kernels too), by
+    attribute name (``substep``, ``observe``, ...)."""
+    spaces = [sim.kernels] + ([sim.hand_kernels] if hasattr(sim, "hand_kernels") else [])
+    return {name: value for space in spaces for name, value in vars(space).items() if isinstance(value, wp.Kernel)}
 
 
 @contextlib.contextmanager

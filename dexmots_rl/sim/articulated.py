@@ -144,13 +144,16 @@ class ArticulatedSimulator(ObjectSimulator):
                  dtype: torch.dtype = torch.float32, substeps: int = 16, dt: float | None = None,
                  contact: ContactParams | None = None, table: TableContact | None = None,
                  adjoint_clip: float | None = None):
-        if adjoint_clip is not None:
-            raise ValueError("adjoint_clip is not supported for articulated-object scenes (use None)")
+        if adjoint_clip is not None and not adjoint_clip >= 1.0:
+            raise ValueError(f"adjoint_clip must be None or >= 1 (a multiple of the median world), got {adjoint_clip}")
         sub_dt = scene.timestep if dt is None else dt / substeps
         super().__init__(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps, sub_dt=sub_dt,
                          table=table, gravity=scene.gravity)
         self.scene = scene
         self.contact = contact or ContactParams()
+        # Simulator's outlier-world gradient clip (a training option), applied in ArticulatedStep.backward
+        self.adjoint_clip = adjoint_clip
+        self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)
         if (np.asarray(scene.joint_type) != 0).any():
             raise ValueError("an articulated-object scene's hand joints must all be hinges")
         self.nu = scene.num_hand_dofs
@@ -158,6 +161,11 @@ class ArticulatedSimulator(ObjectSimulator):
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
                                                scene.points_per_link, scene.tree.num_bodies, scene.geoms.kind.shape[1])
         self.hand_model = self._make_hand_model()
+
+    @property
+    def clipped_adjoints(self) -> int:
+        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down (as :class:`~dexmots_rl.sim.Simulator`)."""
+        return int(self._clipped)
 
     @property
     def nq(self) -> int:
@@ -328,7 +336,7 @@ class ArticulatedStep(torch.autograd.Function):
     def forward(ctx, sim: ArticulatedSimulator, *inputs):
         inputs = [t.detach().to(sim.dtype).clone() for t in inputs]
         grad = any(ctx.needs_input_grad[1:])
-        ctx.tape = None
+        ctx.tape, ctx.sim = None, sim
         if grad:
             tape = wp.Tape()
             with tape:
@@ -351,4 +359,8 @@ class ArticulatedStep(torch.autograd.Function):
         grads = [wp.to_torch(a.grad).clone() for a in ctx.warp_in]
         ctx.tape.zero()
         ctx.tape = ctx.warp_in = ctx.warp_out = None
+        if ctx.sim.adjoint_clip is not None:
+            from .simulator import _clip_outlier_worlds
+
+            grads = _clip_outlier_worlds(ctx.sim, grads)
         return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])

@@ -92,6 +92,10 @@ class OperateObjectEnv(DexEnv):
     def asset_path(cls):
         raise ValueError("task 'operate' builds its scene from task.object (operate_object.build_scene)")
 
+    @classmethod
+    def task_scene(cls, config):
+        return build_scene(config.object)[0]
+
     def __init__(self, config: OperateObjectConfig, scene=None, **kwargs):
         self.object_asset = None
         if scene is None:
