@@ -25,7 +25,7 @@ import sys
 
 from ..envs import list_tasks
 from ._cli import errors_as_one_line
-from .bench_setup import bench_tasks
+from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, train_one
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
 
@@ -33,7 +33,6 @@ log = logging.getLogger(__name__)
 
 # targets the gradient benchmark reports against (not used to tune anything)
 GOALS = {"median_rel_err_with_contact": 0.05, "grad_growth_at_longest_horizon": 10.0}
-TRAIN_GOAL_SUCCESS = 0.9  # the success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -201,9 +200,9 @@ def _execute(args: argparse.Namespace) -> dict:
 
 def _train_bench(args: argparse.Namespace) -> dict:
     if not args.seeds:
-        return _train_one(args, args.seed, args.run_dir)
+        return train_one(args, args.seed, args.run_dir)
     # several seeds: one run each (run_dir/seed<N> when --run-dir is given), then mean and sample s.d.
-    runs = [_train_one(args, seed, f"{args.run_dir}/seed{seed}" if args.run_dir else None) for seed in args.seeds]
+    runs = [train_one(args, seed, f"{args.run_dir}/seed{seed}" if args.run_dir else None) for seed in args.seeds]
     def mean(key: str) -> float:
         return statistics.fmean(r[key] for r in runs)
 
@@ -212,23 +211,6 @@ def _train_bench(args: argparse.Namespace) -> dict:
             "success_rate_std": statistics.stdev(rates) if len(rates) > 1 else 0.0,
             "wall_clock_s": mean("wall_clock_s"), "env_steps": mean("env_steps"),
             "mean_final_error": mean("mean_final_error"), "goal_success_rate": TRAIN_GOAL_SUCCESS, "runs": runs}
-
-
-def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict:
-    from hydra import compose, initialize_config_dir
-
-    from .train import CONFIG_DIR, run as train
-
-    run_dir = run_dir or f"runs/bench_{args.task}_{args.algo}_seed{seed}"
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={seed}",
-                                           f"device={args.device}", f"run_dir={run_dir}", "progress=false",
-                                           *args.overrides])
-    result = train(cfg)
-    return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
-            "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
-            "mean_final_error": result["mean_final_error"], "goal_success_rate": TRAIN_GOAL_SUCCESS,
-            "learning_curve": f"{run_dir}/metrics.jsonl"}
 
 
 def main(argv: list[str] | None = None) -> None:

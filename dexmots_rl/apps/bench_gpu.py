@@ -17,7 +17,7 @@ cut short keeps what it measured):
 5. ``agreement``: the CPU and the device step the same worlds with the same actions for ``--agree-steps``
    env steps, in float64; the largest joint-state difference at a few steps and at the end.
 6. ``train``: screw_claw with AHAC at ``--train-envs`` worlds for ``--train-seconds`` of training, then its
-   evaluation (dexmots-train's defaults otherwise; :func:`.bench._train_one`).
+   evaluation (dexmots-train's defaults otherwise; :func:`.bench_setup.train_one`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from types import SimpleNamespace
 import torch
 
 from ..atomic import atomic_write_json
-from .bench_setup import bench_task, device_name, load_task_scene
+from .bench_setup import bench_task, device_name, load_task_scene, train_one
 
 __all__ = ["GOALS", "machine_info", "run_agreement", "run_gpu_check"]
 
@@ -149,7 +149,6 @@ def run_gpu_check(device: str = "cuda", tasks=("screw_claw", "allegro_rotate", "
                   run_dir: str = "runs/gpu_check", out: str | None = "gpu_check.json") -> dict:
     """The whole check (see the module docstring); returns the dict also written to ``out``."""
     from ..sim.simulator import check_device
-    from .bench import _train_one
     from .bench_compile import run_compile
     from .bench_grad import run_grad
     from .bench_pipeline import run_pipeline
@@ -189,7 +188,7 @@ def run_gpu_check(device: str = "cuda", tasks=("screw_claw", "allegro_rotate", "
     args = SimpleNamespace(task="screw_claw", algo="ahac", device=device, overrides=[
         f"task.num_envs={train_envs}", f"budget.wall_clock_s={train_seconds}",
         f"eval.episodes={eval_episodes}", "overwrite=true", *train_overrides])
-    report.section("train", lambda: _train_one(args, 0, run_dir))
+    report.section("train", lambda: train_one(args, 0, run_dir))
     report.data["goals"], report.data["goals_met"] = dict(GOALS), _goals(report.data)
     if report.path is not None:
         atomic_write_json(report.path, report.data, indent=1)

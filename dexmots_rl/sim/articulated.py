@@ -13,127 +13,20 @@ recorded on a ``wp.Tape``, each substep writing arrays of its own.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
 import torch
 import warp as wp
 
-from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SPHERE, build_hand_kernels
-from .mjcf_shapes import _quat_to_mat
+from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
+from .hand_kernels import build_hand_kernels
 from .model import ContactParams
-from .object_model import ObjectTree
 from .object_sim import ObjectSimulator, TableContact
 
-__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStep", "object_geoms"]
+__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStep", "ObjectGeoms", "object_geoms"]
 
 LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
-
-
-@dataclasses.dataclass
-class ObjectGeoms:
-    """The object's collision geoms for finger contact, per body (``[B, G]``, G the most any body has):
-    kind (GEOM_*; GEOM_NONE pads), centre (m) and rotation in the body frame, sizes (m: box half sizes; sphere
-    radius; capsule and cylinder radius and half length). A mesh geom collides as its oriented bounding box."""
-
-    kind: np.ndarray
-    pos: np.ndarray
-    rot: np.ndarray
-    size: np.ndarray
-
-
-def object_geoms(m) -> ObjectGeoms:
-    """Read the collision geoms of body ``object`` and its descendants from a compiled model."""
-    import mujoco
-    import trimesh
-
-    root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
-    bodies = [root] + [b for b in range(root + 1, m.nbody) if _descends(m, b, root)]
-    per_body = []
-    for b in bodies:
-        geoms = []
-        for g in range(m.ngeom):
-            if m.geom_bodyid[g] != b or not (m.geom_contype[g] or m.geom_conaffinity[g]):
-                continue
-            kind, size = int(m.geom_type[g]), np.asarray(m.geom_size[g], dtype=np.float64)
-            pos, rot = m.geom_pos[g].copy(), _quat_to_mat(m.geom_quat[g])
-            if kind == mujoco.mjtGeom.mjGEOM_BOX:
-                geoms.append((GEOM_BOX, pos, rot, size[:3]))
-            elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-                geoms.append((GEOM_SPHERE, pos, rot, np.array([size[0], 0.0, 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-                geoms.append((GEOM_CAPSULE, pos, rot, np.array([size[0], size[1], 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-                geoms.append((GEOM_CYLINDER, pos, rot, np.array([size[0], size[1], 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_MESH:
-                mid = m.geom_dataid[g]
-                verts = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
-                box = trimesh.PointCloud(verts).bounding_box_oriented
-                local = np.asarray(box.primitive.transform)
-                geoms.append((GEOM_BOX, pos + rot @ local[:3, 3], rot @ local[:3, :3],
-                              np.asarray(box.primitive.extents) / 2))
-        per_body.append(geoms)
-    width = max(1, max(len(g) for g in per_body))
-    kind = np.full((len(bodies), width), GEOM_NONE, dtype=np.int32)
-    pos, size = np.zeros((len(bodies), width, 3)), np.zeros((len(bodies), width, 3))
-    rot = np.tile(np.eye(3), (len(bodies), width, 1, 1))
-    for b, geoms in enumerate(per_body):
-        for g, (k, p, r, s) in enumerate(geoms):
-            kind[b, g], pos[b, g], rot[b, g], size[b, g] = k, p, r, s
-    return ObjectGeoms(kind, pos, rot, size)
-
-
-def _descends(m, b: int, root: int) -> bool:
-    while b > 0:
-        if b == root:
-            return True
-        b = int(m.body_parentid[b])
-    return False
-
-
-@dataclasses.dataclass
-class ArticulatedScene:
-    """A fixed-mount hand (``hand``: the hand fields of :class:`~dexmots_rl.sim.SceneModel`, by name) and an
-    articulated object (``tree``, ``geoms``); ``palm``: the palm's colliding boxes (world frame; not yet in
-    contact with the object)."""
-
-    path: str
-    hand: dict
-    tree: ObjectTree
-    geoms: ObjectGeoms
-    palm: tuple
-
-    def __getattr__(self, name):  # the hand's fields read like SceneModel's (scene.num_fingers, ...)
-        hand = self.__dict__.get("hand")
-        if hand is not None and name in hand:
-            return hand[name]
-        raise AttributeError(name)
-
-    articulated = True
-
-    @property
-    def num_hand_dofs(self) -> int:
-        return self.hand["num_fingers"] * self.hand["joints_per_finger"]
-
-    @property
-    def object_nq(self) -> int:
-        return self.tree.nq
-
-    @property
-    def object_nv(self) -> int:
-        return self.tree.nv
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return self.tree.param_names
-
-    def default_param_values(self) -> dict[str, float]:
-        return self.tree.default_param_values()
-
-    @property
-    def object_q0(self) -> np.ndarray:
-        return self.tree.q0
 
 
 class ArticulatedSimulator(ObjectSimulator):
