@@ -90,3 +90,25 @@ def test_gradient_through_finger_contact_matches_finite_differences():
             fd[i] = (loss(plus) - loss(minus)).item() / (2 * eps)
     assert np.abs(fd).max() > 1e-3
     np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
+
+
+def test_palm_pushes_the_object():
+    """A bottle whose top is 3 mm inside the palm is pushed down by it (compared with the same scene without palm
+    contact; the fingers' contact is switched off, as the bottle also overlaps them there)."""
+    import dataclasses
+
+    from dexmots_rl.sim import ContactParams
+
+    scene = _scene("spray_bottle_a")
+    assert len(scene.palm[0]) == 1
+    palm_pos, palm_rot, palm_half = (np.asarray(a)[0] for a in scene.palm)
+    bottom = palm_pos[2] - np.abs(palm_rot[2]) @ palm_half  # the palm box's lowest z
+    top = max(float(p[2] + r) for p, r in zip(scene.tree.sample_pos[0], scene.tree.sample_radius[0]) if r >= 0)
+    speeds = []
+    for palm in (scene.palm, tuple(np.zeros((0, *np.shape(a)[1:])) for a in scene.palm)):
+        sim = ArticulatedSimulator(dataclasses.replace(scene, palm=palm), 1, contact=ContactParams(stiffness=0.0))
+        q, qd = sim.initial_state()
+        q[0, sim.nu:sim.nu + 3] = torch.tensor([palm_pos[0], palm_pos[1], bottom + 0.003 - top])
+        out = sim.step(q, qd, sim.zero_control(), sim.default_params())
+        speeds.append(out.joint_qd[0, sim.nu:sim.nu + 3])
+    assert speeds[0][2] < speeds[1][2] - 0.05  # pushed down, beyond gravity's share

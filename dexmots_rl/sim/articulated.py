@@ -21,6 +21,8 @@ import warp as wp
 
 from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from .hand_kernels import build_hand_kernels
+from .object_model import MAX_SAMPLES
+from .palm_object_kernels import build_palm_object_kernels
 from .model import ContactParams
 from .object_sim import ObjectSimulator, TableContact
 
@@ -54,6 +56,7 @@ class ArticulatedSimulator(ObjectSimulator):
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
                                                scene.points_per_link, scene.tree.num_bodies, scene.geoms.kind.shape[1])
         self.hand_model = self._make_hand_model()
+        self.palm_kernels, self.palm_model = self._make_palm()
 
     @property
     def clipped_adjoints(self) -> int:
@@ -67,6 +70,25 @@ class ArticulatedSimulator(ObjectSimulator):
     @property
     def nv(self) -> int:
         return self.nu + self.tree.nv
+
+    def _make_palm(self):
+        """The palm's kernel and model (None, None when the scene's palm does not collide with the object)."""
+        pos, rot, half = self.scene.palm
+        if len(pos) == 0:
+            return None, None
+        k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, MAX_SAMPLES, len(pos))
+        wdt, c, t = self.kernels.dtype, self.table, self.tree
+
+        def arr(x, dtype):
+            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
+
+        m = k.Model()
+        m.box_pos, m.box_rot, m.box_half = arr(pos, k.vec3), arr(rot, k.mat33), arr(half, k.vec3)
+        m.sample_pos, m.sample_radius = arr(t.sample_pos, k.vec3), arr(t.sample_radius, wdt)
+        # the table's law: both are rigid surfaces the object's samples rest on
+        m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
+                                                               c.slip_velocity))
+        return k, m
 
     def _make_hand_model(self):
         s, k, c, geoms = self.scene, self.hand_kernels, self.contact, self.scene.geoms
@@ -157,6 +179,11 @@ class ArticulatedSimulator(ObjectSimulator):
             if k.table:
                 wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, *frames, dt], outputs=contact,
                           device=self.device)
+            if self.palm_kernels is not None:
+                with_palm = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
+                wp.launch(self.palm_kernels.palm_contact, dim=(n, nb), inputs=[self.palm_model, *frames, dt, *contact],
+                          outputs=with_palm, device=self.device)
+                contact = with_palm
             gen = new(wdt, nu)
             step_normal = wp.zeros(n, dtype=wdt, device=self.device, requires_grad=grad)
             hand_f, hand_t = new(k.vec3, nb), new(k.vec3, nb)

@@ -82,8 +82,8 @@ def _descends(m, b: int, root: int) -> bool:
 @dataclasses.dataclass
 class ArticulatedScene:
     """A fixed-mount hand (``hand``: the hand fields of :class:`~dexmots_rl.sim.SceneModel`, by name) and an
-    articulated object (``tree``, ``geoms``); ``palm``: the palm's colliding boxes (world frame; not yet in
-    contact with the object)."""
+    articulated object (``tree``, ``geoms``); ``palm``: (centres [K, 3], rotations [K, 3, 3], half sizes [K, 3]),
+    world frame, of the palm's boxes that collide with the object (none: the palm is drawn only)."""
 
     path: str
     hand: dict
