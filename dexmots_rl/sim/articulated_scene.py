@@ -61,7 +61,8 @@ def object_geoms(m) -> ObjectGeoms:
                 geoms.append((GEOM_BOX, pos + rot @ local[:3, 3], rot @ local[:3, :3],
                               np.asarray(box.primitive.extents) / 2))
         per_body.append(geoms)
-    width = max(1, max(len(g) for g in per_body))
+    # padded to at least 4 geoms per body: most objects then share one compiled contact kernel
+    width = max(4, max(len(g) for g in per_body))
     kind = np.full((len(bodies), width), GEOM_NONE, dtype=np.int32)
     pos, size = np.zeros((len(bodies), width, 3)), np.zeros((len(bodies), width, 3))
     rot = np.tile(np.eye(3), (len(bodies), width, 1, 1))
