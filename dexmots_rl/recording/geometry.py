@@ -100,8 +100,9 @@ def transform(points: np.ndarray, pose) -> np.ndarray:
 
 def recorded_body_names(scene) -> list[str]:
     """The bodies of ``body_pose`` for a scene: the hand's links, then the object's body or bodies."""
-    if getattr(scene, "articulated", False):
-        return list(scene.body_names) + list(scene.tree.body_names)
+    tree = getattr(scene, "tree", None)  # an ArticulatedScene's object tree
+    if tree is not None:
+        return list(scene.body_names) + list(tree.body_names)
     return list(scene.body_names)
 
 
