@@ -45,6 +45,8 @@ WIDTH, HEIGHT = 1280, 800
 # viser warns about software WebGL in a toast over the canvas; hide toasts in the screenshot
 HIDE_TOASTS = ("document.head.insertAdjacentHTML('beforeend', "
                "'<style>.mantine-Notifications-root, [class*=Notification]{display:none !important}</style>')")
+# the control panel is the page's first mantine Paper (figures for the docs show the scene alone)
+HIDE_PANEL = "document.querySelector('.mantine-Paper-root').style.display = 'none'"
 
 
 def find_chromium() -> str | None:
@@ -183,9 +185,11 @@ def make_recording(path: Path, num_envs: int = 2, steps: int = 10) -> Path:
 
 def run_check(recording: str | Path, out: str | Path | None = None, chromium: str | None = None,
               timeout: float = 90.0, min_pixels: int = 200, size: tuple[int, int] = (WIDTH, HEIGHT),
-              shadows: bool = False, groups: bool = True, viewer_kwargs: dict | None = None) -> dict:
+              shadows: bool = False, groups: bool = True, viewer_kwargs: dict | None = None,
+              hide_panel: bool = False) -> dict:
     """Serve ``recording`` and screenshot it in headless Chromium once the scene has arrived (or ``timeout``);
-    with ``groups``, count each group's pixels (see the module docstring). ``out``: the full screenshot."""
+    with ``groups``, count each group's pixels (see the module docstring). ``out``: the full screenshot, without
+    the control panel when ``hide_panel``."""
     from dexmots_rl.viz.viewer import ReplayViewer
 
     binary = chromium or find_chromium()
@@ -211,6 +215,8 @@ def run_check(recording: str | Path, out: str | Path | None = None, chromium: st
             timeline = timeline_drawn(cdp)
             result["timeline"] = bool(timeline["sliders"] >= 1 and timeline["frame_label"])
             if result["timeline"]:
+                if hide_panel:
+                    cdp.call("Runtime.evaluate", expression=HIDE_PANEL)
                 img, png = _settled(cdp, 1.0, max(1.0, timeout - (time.monotonic() - start)))
                 break
         if img is not None and groups:

@@ -178,11 +178,16 @@ def test_articulated_recording_carries_every_body(articulated_recording):
         eye, look = np.asarray(cam.position), np.asarray(cam.look_at)
         pts = np.concatenate([g.world_points(pose[w]) + rec.world_offsets[w].numpy() for w in range(2)])
         fwd = (look - eye) / np.linalg.norm(look - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
         rel = pts - eye
         depth = rel @ fwd
-        off_axis = np.linalg.norm(rel - depth[:, None] * fwd, axis=1)
-        assert (depth > 0).all() and (off_axis / depth).max() < np.tan(cam.fov / 2)
-        assert np.linalg.norm(eye - look) < 1.0  # close: the scene fills the view, not a speck in it
+        half = np.tan(cam.fov / 2)  # vertical; the browser check's 800 x 500 view is 1.6 times as wide
+        assert (depth > 0).all() and (np.abs(rel @ up) / depth).max() < half
+        assert (np.abs(rel @ right) / depth).max() < 1.6 * half
+        # and it fills the view: the scene spans most of its height or width
+        assert max(np.ptp((rel @ up) / depth) / (2 * half), np.ptp((rel @ right) / depth) / (3.2 * half)) > 0.5
         # the arrows' heads are sized by the scene (the scissors' half diagonal), not 5 cm
         assert 0.005 < viewer._style.head_length < 0.04
     finally:

@@ -64,7 +64,7 @@ PALETTE = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f
 ARROW_COLORS = np.array([[230, 50, 50], [50, 205, 50], [240, 150, 25], [50, 150, 240]], dtype=np.uint8)
 MAX_PLOTTED_WORLDS = 8
 CAMERA_DIRECTION = (0.35, -1.0, 0.6)  # the first view: from the front right of the hand (fingers along +x), above
-CAMERA_MARGIN = 1.1  # the framed bounding sphere's radius times this fills the view's height
+CAMERA_MARGIN = 0.9  # the framed bounding sphere's radius times this fills the view's height (its corners may be cut)
 
 
 class PortInUseError(OSError):
