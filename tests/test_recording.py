@@ -198,3 +198,37 @@ def test_operable_static_base_round_trips_and_the_viewer_draws_it(tmp_path):
         assert torch.allclose(torch.as_tensor(handle.batched_positions, dtype=torch.float64), rec.world_offsets)
     finally:
         viewer.stop()
+
+
+@pytest.mark.parametrize("xml", ["claw_screw.xml", "allegro_knob.xml", "allegro_cube.xml", "allegro_stapler.xml"])
+def test_every_body_of_the_shipped_scenes_is_drawn_where_mujoco_puts_it(xml):
+    import mujoco
+    import numpy as np
+
+    from dexmots_rl.assets import asset_path
+    from dexmots_rl.recording.geometry import STATIC, transform
+    from dexmots_rl.sim import Simulator, load_scene
+
+    scene = load_scene(asset_path(xml))
+    geo = scene_geometry(scene)
+    assert {p.body for p in geo.parts if p.role == "hand"} == set(range(geo.num_hand_links))
+    assert [p.body for p in geo.parts if p.role == "object"] == [geo.num_hand_links]
+    assert any(p.role == "palm" for p in geo.parts) == xml.startswith("allegro")  # the claw's root has no geom
+    # at a random pose, each single-primitive link's mesh is centred on MuJoCo's geom
+    sim = Simulator(scene, 1, dtype=torch.float64)
+    q = sim.initial_state()[0] + 0.3 * torch.rand(1, sim.nq, generator=torch.Generator().manual_seed(0))
+    pose = sim.observe(q)[0][0].numpy()
+    m = mujoco.MjModel.from_xml_path(str(asset_path(xml)))
+    d = mujoco.MjData(m)
+    d.qpos[:] = q[0].numpy()
+    mujoco.mj_kinematics(m, d)
+    checked = 0
+    for p in geo.parts:
+        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, p.name)
+        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body]
+        if len(geoms) != 1 or m.geom_type[geoms[0]] == mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        world = p.vertices if p.body == STATIC else transform(p.vertices, pose[p.body])
+        assert np.allclose(0.5 * (world.min(0) + world.max(0)), d.geom_xpos[geoms[0]], atol=1e-6), p.name
+        checked += 1
+    assert checked >= 4  # the claw's four links; the Allegro's 12 one-capsule links, its palm and box objects
