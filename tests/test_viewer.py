@@ -188,6 +188,8 @@ def test_articulated_recording_carries_every_body(articulated_recording):
         assert (np.abs(rel @ right) / depth).max() < 1.6 * half
         # and it fills the view: the scene spans most of its height or width
         assert max(np.ptp((rel @ up) / depth) / (2 * half), np.ptp((rel @ right) / depth) / (3.2 * half)) > 0.5
+        # a bare simulator has no goal: the ghost (which would tint the object) starts hidden
+        assert rec.meta["goal"] == "false" and not viewer._handles["goal"].visible
         # the arrows' heads are sized by the scene (the scissors' half diagonal), not 5 cm
         assert 0.005 < viewer._style.head_length < 0.04
     finally:

@@ -23,7 +23,8 @@ topic                  schema (encoding)           content
 
 An MCAP metadata record ``dexmots`` holds ``format``, ``version``, ``task``, ``num_worlds``,
 ``num_frames``, ``dt``, ``dtype``, ``body_names`` (JSON), ``num_hand_links``, ``world_offsets`` (JSON),
-``start_time_ns`` and the arrow scales ``force_scale`` / ``torque_scale``. A frame's log time is ``start_time_ns + frame * dt``;
+``start_time_ns``, the arrow scales ``force_scale`` / ``torque_scale`` and ``goal`` (``"false"`` when the
+recorded task has no goal pose: the ghost then sits on the object and is hidden at first). A frame's log time is ``start_time_ns + frame * dt``;
 episodes follow each other on one timeline (``episode`` says which). Poses are position + ``wxyz`` quaternion
 (Foxglove's ``xyzw`` on ``/tf``); float values go through float64 (protobuf doubles, JSON ``repr``), so
 a float32 recording reads back bit-exact. In Foxglove: a 3D panel (fixed frame ``world``) and a Plot

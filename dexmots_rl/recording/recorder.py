@@ -89,6 +89,7 @@ class EpisodeRecorder:
         self.world_spacing = world_spacing
         self.task = task or _task_name(self.base)
         self._style = None
+        self._has_goal = True  # until a frame has no goal pose
         self.episode, self.num_frames = 0, 0
         self._frames_in_episode = 0
         self._messages: list[tuple[str, int, bytes]] = []
@@ -177,11 +178,13 @@ class EpisodeRecorder:
         goal = body_pose[:, self.geometry.num_hand_links].copy()
         target = torch.zeros(n, 6, dtype=torch.float64)
         if not hasattr(self.base, "reference"):  # a bare simulator: no task, no goal
+            self._has_goal = False
             return goal, target
         try:  # references clamp steps to their plan: a step past any episode is the plan's end, the goal
             last = torch.full((n, 1), GOAL_STEP, dtype=torch.int64, device=self.base.device)
             goal = self.base.reference(td, last)["pose"][:, 0].detach().cpu().double().numpy()
         except Exception as exc:  # a task without references: the ghost sits on the object
+            self._has_goal = False
             self._warn_once("a goal pose", exc)
         try:
             target = self.base.reference(td, td.get(("task", "step")))["wrench"][:, 0].detach().cpu()
@@ -281,6 +284,7 @@ class EpisodeRecorder:
             "num_hand_links": str(self.geometry.num_hand_links),
             "world_offsets": json.dumps(self._offsets.tolist()), "start_time_ns": str(self.start_time_ns),
             "force_scale": repr(self.force_scale), "torque_scale": repr(self.torque_scale),
+            "goal": "true" if self._has_goal else "false",
         })
         sequence: dict[str, int] = {}
         for topic, t_ns, data in self._messages:

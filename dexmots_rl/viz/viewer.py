@@ -218,6 +218,7 @@ class ReplayViewer:
             self._style = arrow_style(rec.geometry, pose[0, 0])
             if not same_scene:
                 self._build_scene(rec)
+                self._gui["goal"].value = rec.meta.get("goal", "true") == "true"  # no goal: no ghost
             slider = self._gui["frame"]
             follow = first or self._playing or slider.value >= slider.max
             slider.max = max(rec.num_frames - 1, 1)
