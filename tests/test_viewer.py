@@ -207,3 +207,25 @@ def test_headless_browser_draws_palm_object_parts_and_table(articulated_recordin
     # each of the scissors' halves
     assert set(result["pixels"]) == {"hand", "palm", "table", "object:object", "object:object/half_b"}, result
     assert min(result["pixels"].values()) >= 200, result
+
+
+def test_a_scene_whose_mjcf_is_gone_is_drawn_from_its_object(tmp_path):
+    import shutil
+
+    from dexmots_rl.assets.hand_scene import hand_object_scene_xml
+    from dexmots_rl.assets.objects import load_object
+    from dexmots_rl.recording.geometry import scene_geometry
+    from dexmots_rl.sim import load_scene
+
+    asset = load_object("valve_a")
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    (folder / "scene.xml").write_text(hand_object_scene_xml(asset, folder))
+    scene = load_scene(folder / "scene.xml")
+    want = scene_geometry(scene)
+    shutil.rmtree(folder)
+    with pytest.raises(ValueError, match="scene.xml: the scene's MJCF file is gone"):
+        scene_geometry(scene)
+    got = scene_geometry(scene, asset=asset)
+    assert [(p.name, p.role, p.body) for p in got.parts] == [(p.name, p.role, p.body) for p in want.parts]
+    assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(got.parts, want.parts))

@@ -155,12 +155,35 @@ def _moves(m, b: int) -> bool:
     return False
 
 
-def scene_geometry(scene) -> SceneGeometry:
-    """The geometry of every body of ``scene`` (a :class:`~dexmots_rl.sim.SceneModel` or an
-    :class:`~dexmots_rl.sim.articulated.ArticulatedScene`), read from the MJCF it was loaded from."""
+def _compiled_model(scene, asset=None):
+    """MuJoCo's model of ``scene``: its MJCF file, or (when that file is gone, as for a scene built in a
+    temporary folder) the hand-and-object MJCF of ``asset`` written again."""
+    import tempfile
+    from pathlib import Path
+
     import mujoco
 
-    m = mujoco.MjModel.from_xml_path(str(scene.path))
+    if Path(scene.path).is_file():
+        return mujoco.MjModel.from_xml_path(str(scene.path))
+    if asset is None:
+        raise ValueError(f"{scene.path}: the scene's MJCF file is gone; keep it while recording, or pass the "
+                         "scene's object asset to rebuild it")
+    from ..assets.hand_scene import hand_object_scene_xml
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "scene.xml"
+        path.write_text(hand_object_scene_xml(asset, tmp))
+        return mujoco.MjModel.from_xml_path(str(path))
+
+
+def scene_geometry(scene, asset=None) -> SceneGeometry:
+    """The geometry of every body of ``scene`` (a :class:`~dexmots_rl.sim.SceneModel` or an
+    :class:`~dexmots_rl.sim.articulated.ArticulatedScene`), read from the MJCF it was loaded from (or, when that
+    file is gone, from the scene of the Allegro hand and the object ``asset``,
+    :func:`~dexmots_rl.assets.hand_scene.hand_object_scene_xml`)."""
+    import mujoco
+
+    m = _compiled_model(scene, asset)
     d = mujoco.MjData(m)
     mujoco.mj_kinematics(m, d)  # at qpos0: welded bodies' offsets and static bodies' world poses
     names = recorded_body_names(scene)

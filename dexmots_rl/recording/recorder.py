@@ -79,7 +79,8 @@ class EpisodeRecorder:
         self.num_worlds = int(self.base.batch_size[0]) if hasattr(self.base, "batch_size") else int(
             self.sim.num_worlds)
         self.num_bodies = int(self.sim.num_bodies)
-        self.geometry = scene_geometry(self.sim.scene)
+        # an env over a library object built its scene in a temporary folder: its asset rebuilds the MJCF
+        self.geometry = scene_geometry(self.sim.scene, asset=getattr(self.base, "object_asset", None))
         if len(self.geometry.body_names) != self.num_bodies:
             raise ValueError(f"{self.sim.scene.path}: the simulator poses {self.num_bodies} bodies, the scene names "
                              f"{len(self.geometry.body_names)}")
