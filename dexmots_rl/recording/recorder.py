@@ -183,7 +183,9 @@ class EpisodeRecorder:
             return goal, target
         try:  # references clamp steps to their plan: a step past any episode is the plan's end, the goal
             last = torch.full((n, 1), GOAL_STEP, dtype=torch.int64, device=self.base.device)
-            goal = self.base.reference(td, last)["pose"][:, 0].detach().cpu().double().numpy()
+            ref = self.base.reference(td, last)["pose"][:, 0].detach().cpu().double().numpy()
+            valid = np.abs(np.linalg.norm(ref[:, 3:7], axis=-1) - 1.0) < 1e-3  # a fixed base may say zeros
+            goal = np.where(valid[:, None], ref, goal)
         except Exception as exc:  # a task without references: the ghost sits on the object
             self._has_goal = False
             self._warn_once("a goal pose", exc)
