@@ -24,6 +24,8 @@ for these objects yet (the goal window still carries the reference torque).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import os
 import tempfile
 from pathlib import Path
 from typing import ClassVar, Optional
@@ -68,17 +70,41 @@ class OperateObjectConfig(TaskConfig):
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.0, lambda_act=0.01, lambda_f=0.5))
 
 
+def scene_dir(object_name: str) -> Path:
+    """Where the scene of ``object_name`` is written (its MJCF and mesh files; the recorder and the viewer read
+    it back): ``$DEXMOTS_CACHE`` or ``~/.cache/dexmots_rl``, then ``scenes/<object>-<hash>``."""
+    root = Path(os.environ.get("DEXMOTS_CACHE", Path.home() / ".cache" / "dexmots_rl"))
+    digest = hashlib.sha1(str(Path(object_name).resolve() if object_name.endswith(".urdf") else object_name)
+                          .encode()).hexdigest()[:10]
+    return root / "scenes" / f"{Path(object_name).stem}-{digest}"
+
+
 def build_scene(object_name: str):
-    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)."""
+    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
+    and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none)."""
     from ....assets.hand_scene import hand_object_scene_xml
     from ....assets.objects import load_object
     from ....sim import load_scene
 
     asset = load_object(object_name)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "scene.xml"
-        path.write_text(hand_object_scene_xml(asset, tmp))
-        return load_scene(path), asset
+    folder = scene_dir(object_name)
+    folder.mkdir(parents=True, exist_ok=True)
+    xml = hand_object_scene_xml(asset, folder)
+    with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".xml", delete=False) as tmp:
+        tmp.write(xml)
+    path = folder / "scene.xml"
+    os.replace(tmp.name, path)
+    return load_scene(path), asset
+
+
+def _pose(pos, rot) -> list[float]:
+    """pos + wxyz quaternion of a rotation matrix."""
+    import mujoco
+    import numpy as np
+
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.asarray(rot, dtype=np.float64).ravel())
+    return [*pos, *quat]
 
 
 class OperateObjectEnv(DexEnv):
@@ -116,7 +142,8 @@ class OperateObjectEnv(DexEnv):
         self._open = torch.as_tensor(OPEN, dtype=dt, device=dev)
         self._lower = torch.as_tensor(scene.dof_lower, dtype=dt, device=dev)
         self._upper = torch.as_tensor(scene.dof_upper, dtype=dt, device=dev)
-        self._base0 = torch.as_tensor(tree.q0[:7] if tree.free else [0.0] * 7, dtype=dt, device=dev)
+        self._base0 = torch.as_tensor(tree.q0[:7] if tree.free else _pose(tree.offset_pos[0], tree.offset_rot[0]),
+                                      dtype=dt, device=dev)
         j = self.joint_index
         self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
