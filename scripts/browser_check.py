@@ -1,4 +1,4 @@
-"""Headless-browser check of ``dexmots-view``: the page really draws the hand and the object.
+"""Headless-browser check of ``dexmots-view``: the page really draws every part of the scene.
 
     python scripts/browser_check.py                        # records 2 worlds x 10 steps, checks, prints JSON
     python scripts/browser_check.py --recording run.mcap --out docs/viewer.png
@@ -6,14 +6,15 @@
 Starts a :class:`~dexmots_rl.viz.viewer.ReplayViewer` on a free port, opens it in headless Chromium
 (fresh profile, software WebGL) and takes screenshots over the DevTools protocol (a websocket; Chromium's
 ``--screenshot`` flag alone captures the page before the scene arrives) until the scene is drawn or
-``--timeout`` passes. The check projects each world's hand links and object through the viewer's
-initial camera and counts pixels of the hand colour (orange-brown) and the object colour (blue)
-in a box around them: both counts must reach ``--min-pixels``. Exit status 0 when the check passes,
+``--timeout`` passes. Then, for each group of the scene's meshes (the hand's links, the palm, the table,
+each of the object's bodies by name: :func:`scene_groups`), it hides the group in the viewer, takes another
+screenshot and counts the pixels that changed: what a group's meshes cover on screen. Every group must
+change at least ``--min-pixels``; the timeline slider must be drawn. Exit status 0 when the check passes,
 1 when it fails, 2 when no Chromium is found.
 
 Example (needs Chromium; from the repository root):
     .venv/bin/python scripts/browser_check.py --out /tmp/viewer.png --size 800 500
-    {"region": [...], "hand_pixels": 4846, "object_pixels": 6382, ..., "ok": true, ...}
+    {"pixels": {"hand": 4846, "object": 6382}, "timeline": true, "ok": true, ...}
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ import base64
 import io
 import json
 import logging
-import math
 import os
 import shutil
 import subprocess
@@ -45,6 +45,8 @@ WIDTH, HEIGHT = 1280, 800
 # viser warns about software WebGL in a toast over the canvas; hide toasts in the screenshot
 HIDE_TOASTS = ("document.head.insertAdjacentHTML('beforeend', "
                "'<style>.mantine-Notifications-root, [class*=Notification]{display:none !important}</style>')")
+# the control panel is the page's first mantine Paper (figures for the docs show the scene alone)
+HIDE_PANEL = "document.querySelector('.mantine-Paper-root').style.display = 'none'"
 
 
 def find_chromium() -> str | None:
@@ -103,52 +105,55 @@ def launch_chromium(binary: str, profile: Path, timeout: float = 30.0,
     raise RuntimeError(f"{binary} did not open DevTools within {timeout:.0f} s")
 
 
-def _project(points: np.ndarray, eye: np.ndarray, target: np.ndarray, fov: float, w: int, h: int) -> np.ndarray:
-    """Pixel coordinates of world ``points`` [K, 3] for a z-up perspective camera (vertical ``fov``)."""
-    fwd = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    rel = points - eye
-    depth = rel @ fwd
-    t = math.tan(fov / 2)
-    x = (rel @ right) / depth / (t * w / h)
-    y = (rel @ up) / depth / t
-    return np.stack([(x + 1) * w / 2, (1 - y) * h / 2], -1)
+def scene_groups(viewer) -> dict[str, list[str]]:
+    """The viewer's mesh handles by what they draw: ``hand`` (the links), ``palm``, ``table``, ``base`` (an
+    object's static parts) and ``object:<body>`` for each of the object's bodies."""
+    groups: dict[str, list[str]] = {}
+    for k, part in enumerate(viewer.rec.geometry.parts):
+        name = f"object:{part.name}" if part.role == "object" else part.role
+        groups.setdefault(name, []).append(f"part{k}")
+    return groups
 
 
-def colour_masks(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boolean masks of hand-coloured (orange-brown) and object-coloured (blue) pixels of an RGB image."""
-    rgb = img[..., :3].astype(np.float64) / 255.0
-    mx, mn = rgb.max(-1), rgb.min(-1)
-    sat = (mx - mn) / np.maximum(mx, 1e-6)
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    lit = mx > 0.15
-    hand = lit & (sat > 0.2) & (r > g) & (g > b)
-    obj = lit & (sat > 0.2) & (b > r) & (b > g) & (b - r > 0.1)
-    return hand, obj
+def _screenshot(cdp) -> np.ndarray:
+    from PIL import Image
+
+    png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")), png
 
 
-def check_image(img: np.ndarray, viewer, min_pixels: int) -> dict:
-    """Count hand and object pixels in the box where the camera sees the bodies."""
-    rec, h, w = viewer.rec, img.shape[0], img.shape[1]
-    cam = viewer.server.initial_camera
-    worlds = viewer._worlds()
-    off = rec.world_offsets.double().numpy()[worlds] if len(worlds) > 1 else rec.world_offsets.double().numpy().mean(
-        0, keepdims=True)
-    pos = rec.frames["body_pose"][viewer.frame][worlds, :, :3].double().numpy() + off[:, None]
-    px = _project(pos.reshape(-1, 3), np.asarray(cam.position), np.asarray(cam.look_at), cam.fov, w, h)
-    pad = 0.15 * max(w, h)
-    x0, y0 = (px.min(0) - pad).clip(0).astype(int)
-    x1, y1 = np.minimum(px.max(0) + pad, [w, h]).astype(int)
-    hand, obj = colour_masks(img)
-    region = np.zeros_like(hand)
-    region[y0:y1, x0:x1] = True
-    result = {"region": [int(x0), int(y0), int(x1), int(y1)], "hand_pixels": int((hand & region).sum()),
-              "object_pixels": int((obj & region).sum()), "hand_pixels_outside": int((hand & ~region).sum()),
-              "object_pixels_outside": int((obj & ~region).sum())}
-    result["ok"] = result["hand_pixels"] >= min_pixels and result["object_pixels"] >= min_pixels
-    return result
+def _changed(a: np.ndarray, b: np.ndarray) -> int:
+    return int((np.abs(a.astype(np.int16) - b.astype(np.int16)).max(-1) > 12).sum())
+
+
+def _settled(cdp, settle: float, timeout: float, min_changed: int = 0, reference=None):
+    """Screenshots until two in a row agree (and, given a ``reference``, one differs from it by
+    ``min_changed`` pixels or ``timeout`` passes); returns the last image and PNG."""
+    deadline = time.monotonic() + timeout
+    img, png = _screenshot(cdp)
+    while time.monotonic() < deadline:
+        time.sleep(settle)
+        nxt, png = _screenshot(cdp)
+        stable = _changed(nxt, img) == 0
+        img = nxt
+        if stable and (reference is None or _changed(img, reference) >= min_changed):
+            break
+    return img, png
+
+
+def group_pixels(viewer, cdp, base: np.ndarray, min_pixels: int, settle: float = 0.5,
+                 timeout: float = 8.0) -> dict[str, int]:
+    """For each of :func:`scene_groups`: the pixels that change when the group is hidden."""
+    out = {}
+    for name, handles in scene_groups(viewer).items():
+        for h in handles:
+            viewer._handles[h].visible = False
+        img, _ = _settled(cdp, settle, timeout, min_pixels, reference=base)
+        out[name] = _changed(img, base)
+        for h in handles:
+            viewer._handles[h].visible = True
+        _settled(cdp, settle, timeout, 1, reference=img)
+    return out
 
 
 # the viewer's timeline is viser's "Frame" slider: a visible [role=slider] element and its label
@@ -180,16 +185,17 @@ def make_recording(path: Path, num_envs: int = 2, steps: int = 10) -> Path:
 
 def run_check(recording: str | Path, out: str | Path | None = None, chromium: str | None = None,
               timeout: float = 90.0, min_pixels: int = 200, size: tuple[int, int] = (WIDTH, HEIGHT),
-              shadows: bool = False) -> dict:
-    """Serve ``recording``, screenshot it in headless Chromium until the check passes (or ``timeout``)."""
-    from PIL import Image
-
+              shadows: bool = False, groups: bool = True, viewer_kwargs: dict | None = None,
+              hide_panel: bool = False) -> dict:
+    """Serve ``recording`` and screenshot it in headless Chromium once the scene has arrived (or ``timeout``);
+    with ``groups``, count each group's pixels (see the module docstring). ``out``: the full screenshot, without
+    the control panel when ``hide_panel``."""
     from dexmots_rl.viz.viewer import ReplayViewer
 
     binary = chromium or find_chromium()
     if binary is None:
         raise FileNotFoundError("no Chromium found (install it, e.g. apt-get install chromium, or set $CHROMIUM)")
-    viewer = ReplayViewer(recording, port=0, shadows=shadows)
+    viewer = ReplayViewer(recording, port=0, shadows=shadows, **(viewer_kwargs or {}))
     viewer.set_frame(viewer.rec.num_frames - 1)
     profile = Path(tempfile.mkdtemp(prefix="dexmots-chromium-"))
     proc = None
@@ -202,20 +208,22 @@ def run_check(recording: str | Path, out: str | Path | None = None, chromium: st
                  mobile=False)
         cdp.call("Page.navigate", url=viewer.url)
         log.info("chromium up and navigating after %.1f s", time.monotonic() - start)
-        result, png = {"ok": False}, b""
-        while time.monotonic() - start < timeout:
-            time.sleep(1.0)
+        result, png, img = {"ok": False}, b"", None
+        while time.monotonic() - start < timeout:  # the scene has arrived when the timeline is drawn and
+            time.sleep(1.0)                         # two screenshots in a row agree
             cdp.call("Runtime.evaluate", expression=HIDE_TOASTS)
-            png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
-            img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
-            result = check_image(img, viewer, min_pixels)
             timeline = timeline_drawn(cdp)
             result["timeline"] = bool(timeline["sliders"] >= 1 and timeline["frame_label"])
-            result["ok"] = result["ok"] and result["timeline"]
-            log.info("%.1f s: %d hand and %d object pixels, timeline %s", time.monotonic() - start,
-                     result["hand_pixels"], result["object_pixels"], result["timeline"])
-            if result["ok"]:
+            if result["timeline"]:
+                if hide_panel:
+                    cdp.call("Runtime.evaluate", expression=HIDE_PANEL)
+                img, png = _settled(cdp, 1.0, max(1.0, timeout - (time.monotonic() - start)))
                 break
+        if img is not None and groups:
+            result["pixels"] = group_pixels(viewer, cdp, img, min_pixels)
+            log.info("pixels per group: %s", result["pixels"])
+        result["ok"] = bool(result["timeline"] and img is not None
+                            and (not groups or min(result["pixels"].values()) >= min_pixels))
         result["seconds"] = round(time.monotonic() - start, 1)
         result["url"] = viewer.url
         if out is not None and png:

@@ -92,6 +92,77 @@ def test_gradient_through_finger_contact_matches_finite_differences():
     np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
+def test_palm_pushes_the_object():
+    """A bottle whose top is 3 mm inside the palm is pushed down by it (compared with the same scene without palm
+    contact; the fingers' contact is switched off, as the bottle also overlaps them there)."""
+    import dataclasses
+
+    from dexmots_rl.sim import ContactParams
+
+    scene = _scene("spray_bottle_a")
+    assert len(scene.palm[0]) == 1
+    palm_pos, palm_rot, palm_half = (np.asarray(a)[0] for a in scene.palm)
+    bottom = palm_pos[2] - np.abs(palm_rot[2]) @ palm_half  # the palm box's lowest z
+    top = max(float(p[2] + r) for p, r in zip(scene.tree.sample_pos[0], scene.tree.sample_radius[0]) if r >= 0)
+    speeds = []
+    for palm in (scene.palm, tuple(np.zeros((0, *np.shape(a)[1:])) for a in scene.palm)):
+        sim = ArticulatedSimulator(dataclasses.replace(scene, palm=palm), 1, contact=ContactParams(stiffness=0.0))
+        q, qd = sim.initial_state()
+        q[0, sim.nu:sim.nu + 3] = torch.tensor([palm_pos[0], palm_pos[1], bottom + 0.003 - top])
+        out = sim.step(q, qd, sim.zero_control(), sim.default_params())
+        speeds.append(out.joint_qd[0, sim.nu:sim.nu + 3])
+    assert speeds[0][2] < speeds[1][2] - 0.05  # pushed down, beyond gravity's share
+
+
+@pytest.mark.parametrize("name", ["spray_bottle_a", "scissors_a"])
+def test_bang_bang_fingers_inject_no_energy(name):
+    """Random full-torque actions held for 3 steps strike the object; its kinetic + potential energy gain never
+    exceeds the work the motors have done (sum of torque x joint travel) plus what the hand's links can release
+    by falling (their weight over 0.2 m). That bound is loose (the motors' ~50 J over 2 s go mostly into the
+    joints' damping), so the base's speed and spin are also bounded: strikes measured 0.8-1 m/s and 16-25 rad/s;
+    a contact that injects energy flings objects at hundreds of rad/s."""
+    scene = _scene(name)
+    n = 8
+    sim = ArticulatedSimulator(scene, n)
+    q, qd = sim.initial_state()
+    params = sim.default_params()
+    tree, nu = scene.tree, sim.nu
+    gear = torch.as_tensor(scene.actuator_gear, dtype=torch.float32)
+    release = float(np.sum(scene.link_mass)) * 9.81 * 0.2
+    mass, inertia = float(tree.mass[0]), torch.as_tensor(tree.inertia[0], dtype=torch.float32)
+    com_local = torch.as_tensor(tree.com[0], dtype=torch.float32)
+
+    def energy(q, qd):
+        w, x, y, z = q[:, nu + 3], q[:, nu + 4], q[:, nu + 5], q[:, nu + 6]
+        R = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).view(-1, 3, 3)
+        com = q[:, nu:nu + 3] + R @ com_local
+        omega = qd[:, nu + 3:nu + 6]
+        v = qd[:, nu:nu + 3] + torch.cross(omega, com - q[:, nu:nu + 3], dim=-1)
+        spin = (omega * ((R @ inertia @ R.transpose(1, 2)) @ omega[..., None])[..., 0]).sum(-1)
+        return 0.5 * mass * (v ** 2).sum(-1) + 0.5 * spin + mass * 9.81 * com[:, 2]
+
+    gen = torch.Generator().manual_seed(0)
+    e0, work, worst = energy(q, qd), torch.zeros(n), torch.full((n,), -1e9)
+    speed = spin = 0.0
+    with torch.no_grad():
+        for step in range(120):
+            if step % 3 == 0:
+                action = torch.where(torch.rand(n, nu, generator=gen) < 0.5, -1.0, 1.0)
+            ctrl = sim.zero_control()
+            ctrl.tau = action * gear
+            out = sim.step(q, qd, ctrl, params)
+            work += (ctrl.tau * (out.joint_q[:, :nu] - q[:, :nu])).sum(-1)
+            q, qd = out.joint_q, out.joint_qd
+            worst = torch.maximum(worst, energy(q, qd) - e0 - work.clamp(min=0))
+            speed = max(speed, float(qd[:, nu:nu + 3].norm(dim=-1).max()))
+            spin = max(spin, float(qd[:, nu + 3:nu + 6].norm(dim=-1).max()))
+    assert torch.isfinite(q).all()
+    assert speed < 3.0 and spin < 100.0, (speed, spin)
+    assert (worst < release + 0.01).all(), (worst, release)
+
+
 def test_steps_in_flight_keep_their_own_intermediates():
     """Two chained steps differentiated at once (two pooled trajectories in flight, sharing adjoint buffers) give
     the gradient of the chain of single steps, and a gradient-free step in between changes nothing."""

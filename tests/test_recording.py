@@ -74,10 +74,13 @@ def test_round_trip_is_exact(recorded):
 def test_geometry_round_trip(recorded):
     env, path, _ = recorded
     want, got = scene_geometry(env.base_env.sim.scene), read_recording(path).geometry
-    assert got.body_names == want.body_names
-    for a, b in zip(got.links, want.links):
-        assert (a.spheres == b.spheres).all() and (a.segments == b.segments).all()
-    assert (got.object_vertices == want.object_vertices).all() and (got.object_faces == want.object_faces).all()
+    assert got.body_names == want.body_names and got.num_hand_links == want.num_hand_links == 4
+    assert len(got.parts) == len(want.parts)
+    for a, b in zip(got.parts, want.parts):
+        assert (a.name, a.role, a.body) == (b.name, b.role, b.body)
+        assert (a.vertices == b.vertices).all() and (a.faces == b.faces).all()
+        assert a.rgba == pytest.approx(b.rgba)
+    assert (got.ghost_vertices == want.ghost_vertices).all() and (got.ghost_faces == want.ghost_faces).all()
 
 
 def test_mcap_carries_foxglove_schemas_and_zstd_chunks(recorded):
@@ -96,11 +99,11 @@ def test_mcap_carries_foxglove_schemas_and_zstd_chunks(recorded):
         # decoded by the generic protobuf decoder, as Foxglove does
         _, _, _, tf = next(reader.iter_decoded_messages(topics=["/tf"]))
         frames = {t.child_frame_id for t in tf.transforms}
-        assert {"world0", "world0/link0", "world0/link3", "world0/object", "world1/goal"} <= frames
+        assert {"world0", "world0/right_proximal", "world0/left_distal", "world0/object", "world1/goal"} <= frames
         _, _, _, scene = next(reader.iter_decoded_messages(topics=["/scene"]))
         ids = {e.id: e for e in scene.entities}
-        assert ids["world1/link2"].frame_locked and ids["world1/link2"].frame_id == "world1/link2"
-        assert len(ids["world0/link0"].cylinders) == 3 and len(ids["world0/object"].triangles) == 1
+        assert ids["world1/part2"].frame_locked and ids["world1/part2"].frame_id == "world1/left_proximal"
+        assert all(len(e.triangles) == 1 for e in scene.entities)
         assert ids["world0/goal"].triangles[0].color.a < 1
         arrows = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/scene/wrench"])]
         assert len(arrows) == EPISODES * (STEPS + 1) and any(e.arrows for m in arrows for e in m.entities)
@@ -176,20 +179,56 @@ def test_dexmots_record_cli(tmp_path, capsys):
             record.main(argv)
 
 
-def test_operable_base_boxes_round_trip_and_the_viewer_draws_them(tmp_path):
+def test_operable_static_base_round_trips_and_the_viewer_draws_it(tmp_path):
     from dexmots_rl.viz.viewer import ReplayViewer
 
     env = make_env("stapler", num_envs=2, differentiable=False, seed=0, max_episode_steps=3)
     path = tmp_path / "stapler.mcap"
     with EpisodeRecorder(path, env, start_time_ns=0) as rec:
         rec.record_rollout(env.rollout(3, break_when_any_done=False))
-    geometry = read_recording(path).geometry
-    expected = scene_geometry(env.base_env.sim.scene).base_boxes
-    assert expected.shape == (1, 10) and torch.allclose(torch.as_tensor(geometry.base_boxes), torch.as_tensor(expected))
+    rec = read_recording(path)
+    base = [k for k, p in enumerate(rec.geometry.parts) if p.role == "base"]
+    assert len(base) == 1 and rec.geometry.parts[base[0]].name == "object_base"
+    palm = [k for k, p in enumerate(rec.geometry.parts) if p.role == "palm"]
+    assert len(palm) == 1 and rec.geometry.parts[palm[0]].name == "hand"
     viewer = ReplayViewer(path, port=0)
     try:
-        handle = viewer._handles["base0"]
-        assert handle.batched_positions.shape == (2, 3)  # one base per world, at the box's centre
-        assert abs(float(handle.batched_positions[0, 2]) - float(expected[0, 2])) < 1e-6
+        handle = viewer._handles[f"part{base[0]}"]
+        assert handle.batched_positions.shape == (2, 3)  # one base per world, at the world's offset
+        assert torch.allclose(torch.as_tensor(handle.batched_positions, dtype=torch.float64), rec.world_offsets)
     finally:
         viewer.stop()
+
+
+@pytest.mark.parametrize("xml", ["claw_screw.xml", "allegro_knob.xml", "allegro_cube.xml", "allegro_stapler.xml"])
+def test_every_body_of_the_shipped_scenes_is_drawn_where_mujoco_puts_it(xml):
+    import mujoco
+    import numpy as np
+
+    from dexmots_rl.assets import asset_path
+    from dexmots_rl.recording.geometry import STATIC, transform
+    from dexmots_rl.sim import Simulator, load_scene
+
+    scene = load_scene(asset_path(xml))
+    geo = scene_geometry(scene)
+    assert {p.body for p in geo.parts if p.role == "hand"} == set(range(geo.num_hand_links))
+    assert [p.body for p in geo.parts if p.role == "object"] == [geo.num_hand_links]
+    assert any(p.role == "palm" for p in geo.parts) == xml.startswith("allegro")  # the claw's root has no geom
+    # at a random pose, each single-primitive link's mesh is centred on MuJoCo's geom
+    sim = Simulator(scene, 1, dtype=torch.float64)
+    q = sim.initial_state()[0] + 0.3 * torch.rand(1, sim.nq, generator=torch.Generator().manual_seed(0))
+    pose = sim.observe(q)[0][0].numpy()
+    m = mujoco.MjModel.from_xml_path(str(asset_path(xml)))
+    d = mujoco.MjData(m)
+    d.qpos[:] = q[0].numpy()
+    mujoco.mj_kinematics(m, d)
+    checked = 0
+    for p in geo.parts:
+        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, p.name)
+        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body]
+        if len(geoms) != 1 or m.geom_type[geoms[0]] == mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        world = p.vertices if p.body == STATIC else transform(p.vertices, pose[p.body])
+        assert np.allclose(0.5 * (world.min(0) + world.max(0)), d.geom_xpos[geoms[0]], atol=1e-6), p.name
+        checked += 1
+    assert checked >= 4  # the claw's four links; the Allegro's 12 one-capsule links, its palm and box objects

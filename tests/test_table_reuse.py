@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 
 from dexmots_rl.apps import table
 from dexmots_rl.apps.train import CONFIG_DIR
-from dexmots_rl.viz.table_writer import read_csv
+from dexmots_rl.apps.table_writer import read_csv
 
 
 def _table_cfg(sweep: Path, *overrides):

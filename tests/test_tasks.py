@@ -77,7 +77,7 @@ def test_reference_window_shapes(task):
     td = env.reset()
     steps = torch.arange(5).expand(N, 5)
     ref = env.reference(td, steps)
-    k = env.sim.scene.object_nq if env.sim.scene.articulated else 0
+    k = env.goal_window_widths()[0] if env.sim.scene.articulated else 0
     assert ref.batch_size == torch.Size([N, 5])
     assert ref["pose"].shape[-1] == 7 and ref["wrench"].shape[-1] == 6
     if k:

@@ -8,6 +8,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tensordict.nn import TensorDictModule
 
@@ -56,10 +57,14 @@ def test_viewer_serves_the_page_and_steps_through_frames(recording):
         assert viewer.frame == STEPS
         viewer._gui["world"].value = "1"  # one world: the plot shows its reward and reward terms
         assert len(viewer._plot.series) == 2 + len(viewer.rec.reward_terms)
-        assert viewer._handles["object"].batched_positions.shape == (1, 3)
+        obj = next(f"part{k}" for k, p in enumerate(viewer.rec.geometry.parts) if p.role == "object")
+        assert viewer._handles[obj].batched_positions.shape == (1, 3)
         viewer._gui["world"].value = "all"
-        assert viewer._handles["object"].batched_positions.shape == (2, 3)
-        assert viewer._handles["arrows"].points.shape == (8, 2, 3)
+        assert viewer._handles[obj].batched_positions.shape == (2, 3)
+        # the arrows drawn: those of non-zero length (a zero one would still draw its head)
+        points = viewer._handles["arrows"].points
+        assert points.ndim == 3 and 1 <= len(points) <= 8
+        assert (((points[:, 1] - points[:, 0]) ** 2).sum(-1) > 1e-8).all()
         viewer._toggle_play()
         time.sleep(0.3)
         assert viewer._gui["play"].label == "Pause"
@@ -129,6 +134,98 @@ def test_headless_browser_draws_hand_and_object(recording, tmp_path):
         pytest.skip("no Chromium on this machine (apt-get install chromium to run the browser check)")
     result = check.run_check(recording, out=tmp_path / "shot.png", size=(800, 500), timeout=90)
     assert result["ok"], result
-    # the hand, the object and the timeline are all drawn (#16.9)
-    assert result["hand_pixels"] >= 200 and result["object_pixels"] >= 200 and result["timeline"], result
+    # the claw's links, its knob and the timeline are all drawn
+    assert set(result["pixels"]) == {"hand", "object:object"} and result["timeline"], result
+    assert min(result["pixels"].values()) >= 200, result
     assert (tmp_path / "shot.png").stat().st_size > 10_000
+
+
+@pytest.fixture(scope="module")
+def articulated_recording(tmp_path_factory):
+    """Two worlds of the Allegro hand and the scissors (a free base and a moving half) on the table."""
+    from dexmots_rl.assets.hand_scene import hand_object_scene_xml
+    from dexmots_rl.assets.objects import load_object
+    from dexmots_rl.recording import record_simulation
+    from dexmots_rl.sim import load_scene
+    from dexmots_rl.sim.articulated import ArticulatedSimulator
+
+    folder = tmp_path_factory.mktemp("scissors")
+    (folder / "scene.xml").write_text(hand_object_scene_xml(load_object("scissors_a"), folder))
+    sim = ArticulatedSimulator(load_scene(folder / "scene.xml"), num_worlds=2)
+    q, qd = sim.initial_state()
+    q[1, -1] = 0.4  # world 1: the scissors opened
+    return sim, record_simulation(sim, 4, folder / "scissors.mcap", state=(q, qd))
+
+
+def test_articulated_recording_carries_every_body(articulated_recording):
+    sim, path = articulated_recording
+    rec = read_recording(path)
+    g = rec.geometry
+    assert g.body_names[g.num_hand_links:] == ["object", "object/half_b"] and rec.frames["body_pose"].shape[2] == 18
+    roles = {(p.role, p.name) for p in g.parts}
+    assert {("palm", "hand"), ("table", "world"), ("object", "object"), ("object", "object/half_b")} <= roles
+    assert {p.body for p in g.parts if p.role == "hand"} == set(range(16))  # every link
+    # the object's bodies are drawn with their visual meshes (MuJoCo's compiled vertices), not their boxes
+    half_b = next(p for p in g.parts if p.name == "object/half_b")
+    assert len(half_b.faces) > 500
+    # the opened half follows its recorded pose: its mesh turns with the joint
+    pose = rec.frames["body_pose"][-1].double().numpy()
+    tips = [g.world_points(pose[w], roles=("object",)) for w in range(2)]
+    assert abs(np.ptp(tips[0][:, 1]) - np.ptp(tips[1][:, 1])) > 0.01
+    viewer = ReplayViewer(path, port=0)
+    try:  # the first view frames the hand and the scissors: every vertex is in front of the camera, in view
+        cam = viewer.server.initial_camera
+        eye, look = np.asarray(cam.position), np.asarray(cam.look_at)
+        pts = np.concatenate([g.world_points(pose[w]) + rec.world_offsets[w].numpy() for w in range(2)])
+        fwd = (look - eye) / np.linalg.norm(look - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        rel = pts - eye
+        depth = rel @ fwd
+        half = np.tan(cam.fov / 2)  # vertical; the browser check's 800 x 500 view is 1.6 times as wide
+        assert (depth > 0).all() and (np.abs(rel @ up) / depth).max() < half
+        assert (np.abs(rel @ right) / depth).max() < 1.6 * half
+        # and it fills the view: the scene spans most of its height or width
+        assert max(np.ptp((rel @ up) / depth) / (2 * half), np.ptp((rel @ right) / depth) / (3.2 * half)) > 0.5
+        # a bare simulator has no goal: the ghost (which would tint the object) starts hidden
+        assert rec.meta["goal"] == "false" and not viewer._handles["goal"].visible
+        # the arrows' heads are sized by the scene (the scissors' half diagonal), not 5 cm
+        assert 0.005 < viewer._style.head_length < 0.04
+    finally:
+        viewer.stop()
+
+
+def test_headless_browser_draws_palm_object_parts_and_table(articulated_recording, tmp_path):
+    check = _browser_check()
+    if check.find_chromium() is None:
+        pytest.skip("no Chromium on this machine (apt-get install chromium to run the browser check)")
+    _, path = articulated_recording
+    result = check.run_check(path, out=tmp_path / "shot.png", size=(800, 500), timeout=90)
+    assert result["ok"], result
+    # hiding each group changes the picture where it is drawn: the hand's links, the palm, the table and
+    # each of the scissors' halves
+    assert set(result["pixels"]) == {"hand", "palm", "table", "object:object", "object:object/half_b"}, result
+    assert min(result["pixels"].values()) >= 200, result
+
+
+def test_a_scene_whose_mjcf_is_gone_is_drawn_from_its_object(tmp_path):
+    import shutil
+
+    from dexmots_rl.assets.hand_scene import hand_object_scene_xml
+    from dexmots_rl.assets.objects import load_object
+    from dexmots_rl.recording.geometry import scene_geometry
+    from dexmots_rl.sim import load_scene
+
+    asset = load_object("valve_a")
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    (folder / "scene.xml").write_text(hand_object_scene_xml(asset, folder))
+    scene = load_scene(folder / "scene.xml")
+    want = scene_geometry(scene)
+    shutil.rmtree(folder)
+    with pytest.raises(ValueError, match="scene.xml: the scene's MJCF file is gone"):
+        scene_geometry(scene)
+    got = scene_geometry(scene, asset=asset)
+    assert [(p.name, p.role, p.body) for p in got.parts] == [(p.name, p.role, p.body) for p in want.parts]
+    assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(got.parts, want.parts))

@@ -5,10 +5,13 @@
     dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
+    dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
+    dexmots-bench gpu --out gpu_check.json   # every figure on one GPU in one JSON file (scripts/gpu_check.sh)
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput` and :mod:`.bench_grad`.
+:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_compile` and :mod:`.bench_gpu`; ``compile`` and
+``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ import logging
 import statistics
 import sys
 
+from ..envs import list_tasks
 from ._cli import errors_as_one_line
-from .bench_setup import bench_tasks
+from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, train_one
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
 
@@ -29,7 +33,6 @@ log = logging.getLogger(__name__)
 
 # targets the gradient benchmark reports against (not used to tune anything)
 GOALS = {"median_rel_err_with_contact": 0.05, "grad_growth_at_longest_horizon": 10.0}
-TRAIN_GOAL_SUCCESS = 0.9  # the success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,6 +84,41 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train once per seed and report the mean and sample s.d. of the success rate")
     p.add_argument("--run-dir", default=None, help="default: runs/bench_<task>_<algo>_seed<seed>")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides, e.g. algo.iterations=300")
+
+    p = sub.add_parser("compile", help="compile every kernel of a task's scene ahead of time (CUDA: no GPU needed)")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--task", nargs="+", choices=list_tasks(), help="one task or several")
+    which.add_argument("--all", action="store_true", help="every registered task")
+    p.add_argument("--device", default="cuda", choices=["cuda", "cpu"])
+    p.add_argument("--arch", type=int, default=90, help="CUDA compute capability, e.g. 80 (A100), 90 (H100/H200); "
+                   "0: this machine's GPU (its own build, loaded on it)")
+    p.add_argument("--dtypes", nargs="+", default=["float32"], choices=["float32", "float64"])
+    p.add_argument("--jobs", type=int, default=1, help="compile each (task, float type) in its own process")
+    p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
+
+    p = sub.add_parser("gpu", help="throughput, gradients, CPU agreement and a 3-minute training on one GPU, "
+                                   "into one JSON file")
+    p.add_argument("--device", default="cuda", help="cuda[:i]; cpu runs the same check (tiny sizes in the tests)")
+    p.add_argument("--out", default="gpu_check.json", help="the JSON file (rewritten after every section)")
+    p.add_argument("--tasks", nargs="+", default=["screw_claw", "allegro_rotate", "repose_cube"],
+                   choices=bench_tasks())
+    p.add_argument("--num-envs", type=int, nargs="+", default=[1024, 4096, 16384])
+    p.add_argument("--rgb-envs", type=int, default=4096, help="worlds of the RGB 64x64 rows")
+    p.add_argument("--min-time", type=float, default=0.5, help="seconds of timed work per number")
+    p.add_argument("--pipeline-steps", type=int, default=32, help="env steps per timed rollout / collector batch")
+    p.add_argument("--grad-horizon", type=int, default=8)
+    p.add_argument("--grad-draws", type=int, default=4)
+    p.add_argument("--agree-steps", type=int, default=100)
+    p.add_argument("--agree-envs", type=int, default=16)
+    p.add_argument("--train-envs", type=int, default=1024)
+    p.add_argument("--train-seconds", type=float, default=180.0)
+    p.add_argument("--eval-episodes", type=int, default=100)
+    p.add_argument("--compile-jobs", type=int, default=None, help="default: min(8, cores)")
+    p.add_argument("--run-dir", default="runs/gpu_check", help="the training run's directory (overwritten)")
+    p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
+    p.add_argument("overrides", nargs="*", help="extra hydra overrides for the training, e.g. algo.horizon=16")
     return parser
 
 
@@ -131,6 +169,18 @@ def _execute(args: argparse.Namespace) -> dict:
                                   args.settle_steps, args.chunk_steps, obs=args.obs)
         if args.bench == "train":
             return _train_bench(args)
+        if args.bench == "gpu":
+            from .bench_gpu import run_gpu_check
+
+            return run_gpu_check(args.device, args.tasks, args.num_envs, args.rgb_envs, args.min_time,
+                                 args.pipeline_steps, args.grad_horizon, args.grad_draws, args.agree_steps,
+                                 args.agree_envs, args.train_envs, args.train_seconds, args.overrides,
+                                 args.eval_episodes, args.compile_jobs, args.run_dir, args.out)
+        if args.bench == "compile":
+            from .bench_compile import run_compile
+
+            tasks = list_tasks() if args.all else args.task[0] if len(args.task) == 1 else args.task
+            return run_compile(tasks, args.device, args.arch, args.dtypes, args.jobs)
         if args.bench == "pipeline":
             from .bench_pipeline import run_pipeline
 
@@ -150,9 +200,9 @@ def _execute(args: argparse.Namespace) -> dict:
 
 def _train_bench(args: argparse.Namespace) -> dict:
     if not args.seeds:
-        return _train_one(args, args.seed, args.run_dir)
+        return train_one(args, args.seed, args.run_dir)
     # several seeds: one run each (run_dir/seed<N> when --run-dir is given), then mean and sample s.d.
-    runs = [_train_one(args, seed, f"{args.run_dir}/seed{seed}" if args.run_dir else None) for seed in args.seeds]
+    runs = [train_one(args, seed, f"{args.run_dir}/seed{seed}" if args.run_dir else None) for seed in args.seeds]
     def mean(key: str) -> float:
         return statistics.fmean(r[key] for r in runs)
 
@@ -163,33 +213,19 @@ def _train_bench(args: argparse.Namespace) -> dict:
             "mean_final_error": mean("mean_final_error"), "goal_success_rate": TRAIN_GOAL_SUCCESS, "runs": runs}
 
 
-def _train_one(args: argparse.Namespace, seed: int, run_dir: str | None) -> dict:
-    from hydra import compose, initialize_config_dir
-
-    from .train import CONFIG_DIR, run as train
-
-    run_dir = run_dir or f"runs/bench_{args.task}_{args.algo}_seed{seed}"
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={seed}",
-                                           f"device={args.device}", f"run_dir={run_dir}", "progress=false",
-                                           *args.overrides])
-    result = train(cfg)
-    return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
-            "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
-            "mean_final_error": result["mean_final_error"], "goal_success_rate": TRAIN_GOAL_SUCCESS,
-            "learning_curve": f"{run_dir}/metrics.jsonl"}
-
-
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: print the result as JSON (``--json``) or as a table."""
     args = build_parser().parse_args(argv)
     with errors_as_one_line("dexmots-bench"):  # bad input (a GPU this machine lacks) and a full disk: one line
-        if getattr(args, "device", "cpu") != "cpu":
+        # a GPU this machine lacks: before any work (compile builds for a CUDA arch without one)
+        if getattr(args, "device", "cpu") != "cpu" and not (args.bench == "compile" and args.arch):
             from ..sim.simulator import check_device
 
-            check_device(args.device)  # before any work or log line
+            check_device(args.device)
         result = _execute(args)
     print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
+    if result.get("ok") is False:  # dexmots-bench compile: a kernel failed (named on stderr and in the JSON)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

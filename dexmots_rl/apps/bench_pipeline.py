@@ -62,8 +62,9 @@ def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: 
 
         for fn in (kernel, rollout):
             fn()
-        row = {"num_envs": num_envs, "kernel_steps_per_s": measure_rate(kernel, min_time),
-               "rollout_steps_per_s": measure_rate(rollout, min_time)}
+        sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
+        row = {"num_envs": num_envs, "kernel_steps_per_s": measure_rate(kernel, min_time, sync),
+               "rollout_steps_per_s": measure_rate(rollout, min_time, sync)}
     normed = make_env(task, num_envs=num_envs, differentiable=False, seed=0, device=device)
     with warnings.catch_warnings():  # VecNorm's "experimental with a batch size", the collector's InitTracker note
         warnings.simplefilter("ignore")
@@ -75,7 +76,7 @@ def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: 
     def collect() -> int:
         return next(batches).numel()
 
-    row["collector_steps_per_s"] = measure_rate(collect, min_time)
+    row["collector_steps_per_s"] = measure_rate(collect, min_time, sync)
     collector.shutdown()
     row["rollout_fraction"] = row["rollout_steps_per_s"] / row["kernel_steps_per_s"]
     row["collector_fraction"] = row["collector_steps_per_s"] / row["kernel_steps_per_s"]

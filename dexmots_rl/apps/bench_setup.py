@@ -14,7 +14,8 @@ import torch
 
 from ..envs import BenchPoses, list_tasks, task_entry, task_scene
 
-__all__ = ["bench_tasks", "bench_task", "load_task_scene", "device_name", "measure_rate"]
+__all__ = ["bench_tasks", "bench_task", "load_task_scene", "device_name", "measure_rate", "train_one",
+           "TRAIN_GOAL_SUCCESS"]
 
 
 def bench_tasks() -> list[str]:
@@ -54,3 +55,24 @@ def measure_rate(chunk: Callable[[], int], min_time: float, sync: Callable[[], N
         elapsed = time.perf_counter() - start
         if elapsed >= min_time:
             return steps / elapsed
+
+
+TRAIN_GOAL_SUCCESS = 0.9  # the success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)
+
+
+def train_one(args, seed: int, run_dir: str | None) -> dict:
+    """Train ``args.task`` with ``args.algo`` (dexmots-train's config plus ``args.overrides``) for one seed."""
+    from hydra import compose, initialize_config_dir
+
+    from .train import CONFIG_DIR, run as train
+
+    run_dir = run_dir or f"runs/bench_{args.task}_{args.algo}_seed{seed}"
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"task={args.task}", f"algo={args.algo}", f"seed={seed}",
+                                           f"device={args.device}", f"run_dir={run_dir}", "progress=false",
+                                           *args.overrides])
+    result = train(cfg)
+    return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
+            "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
+            "mean_final_error": result["mean_final_error"], "goal_success_rate": TRAIN_GOAL_SUCCESS,
+            "learning_curve": f"{run_dir}/metrics.jsonl"}

@@ -181,8 +181,10 @@ class MujocoBench:
 
 
 def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: str = "cpu", substeps: int = 16,
-                   min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16, obs: str = "state") -> dict:
-    """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``."""
+                   min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16, obs: str = "state",
+                   mujoco: bool = True) -> dict:
+    """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``.
+    ``mujoco=False`` leaves MuJoCo out (its rows' entries are None): ours only, e.g. on a GPU."""
     setup = bench_task(task)
     scene, path = load_task_scene(task)
     law = task_contact(task)  # the contact law the task's env simulates with
@@ -191,19 +193,23 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
     for n in num_envs:
         log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
         ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs, law)
-        mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps)
+        mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps) if mujoco else None
         row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
-               "mujoco_contact_fraction": mj.contact_fraction()}
-        for name, fn in (("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk), ("mujoco", mj.chunk)):
+               "mujoco_contact_fraction": mj.contact_fraction() if mj else None}
+        timed = [("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk)] + ([("mujoco", mj.chunk)] if mj else [])
+        for name, fn in timed:
             fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
             row[f"{name}_steps_per_s"] = measure_rate(fn, min_time, sync)
             log.info("num_envs=%d %s: %.0f env-steps/s", n, name, row[f"{name}_steps_per_s"])
         row.update(ours.split_ms(min_time, sync))
-        mj.close()
+        if mj is not None:
+            mj.close()
+            row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
+        else:
+            row["mujoco_steps_per_s"] = row["ratio_vs_mujoco"] = None
         if row["contact_fraction"] == 0 or row["mujoco_contact_fraction"] == 0:
-            log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %.2f)", n,
+            log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %s)", n,
                         row["contact_fraction"], row["mujoco_contact_fraction"])
-        row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
         rows.append({k: row[k] for k in ("num_envs", "fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s",
                                          "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction",
                                          "taped_fwd_ms", "reverse_ms")})

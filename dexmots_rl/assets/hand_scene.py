@@ -1,7 +1,7 @@
 """A scene of the Allegro hand above a table with an articulated object on it (MJCF text).
 
 The hand is ``allegro_knob.xml``'s (the same links, joints, motors and mount: palm down, fingers along world
-+x, fingertips curling down and back toward the thumb), with gravity on. The object (an
++x, fingertips curling down and back toward the thumb), with gravity on and its palm box colliding. The object (an
 :class:`~dexmots_rl.assets.objects.ObjectAsset`) stands on a table plane so that its grasp point (where a hand
 holds the tool) is at the world origin, where the knob of ``allegro_rotate`` stands: in the fingers' reach.
 """
@@ -21,6 +21,11 @@ def hand_object_scene_xml(asset, mesh_dir: str | Path, grasp_point=GRASP_POINT) 
     """MJCF of the Allegro hand with ``asset`` on a table; mesh files are written into ``mesh_dir``."""
     hand = asset_path("allegro_knob.xml").read_text()
     hand_body = hand[hand.index('    <body name="hand"'):hand.index('    <body name="object"')]
+    # the palm touches the object here (in the knob scene it is drawn only)
+    palm = hand_body.index('name="palm"')
+    end = hand_body.index("/>", palm)
+    hand_body = hand_body[:palm] + hand_body[palm:end].replace('contype="0" conaffinity="0"',
+                                                               'contype="1" conaffinity="2"') + hand_body[end:]
     head = hand[hand.index("  <compiler"):hand.index("  <asset>")].replace('gravity="0 0 0"', 'gravity="0 0 -9.81"')
     actuators = hand[hand.index("  <actuator>"):]
     gx, gy, gz = (g - a for g, a in zip(grasp_point, asset.grasp))

@@ -29,15 +29,16 @@ __all__ = ["ACTION_TYPES", "ActionMap", "validate_action"]
 ACTION_TYPES = ("torque", "position", "vi")
 
 
-def validate_action(action: torch.Tensor, num_envs: int, action_dim: int) -> None:
-    """Raise ``ValueError`` naming the ``action`` field when its shape, dtype or values are wrong."""
+def validate_action(action: torch.Tensor, num_envs: int, action_dim: int, values: bool = True) -> None:
+    """Raise ``ValueError`` naming the ``action`` field when its shape, dtype or (``values``: reading them
+    on the host) values are wrong."""
     if not isinstance(action, torch.Tensor):
         raise ValueError(f"action must be a torch.Tensor, got {type(action).__name__}")
     if not action.is_floating_point():
         raise ValueError(f"action must be a floating-point tensor, got dtype {action.dtype}")
     if tuple(action.shape) != (num_envs, action_dim):
         raise ValueError(f"action has shape {tuple(action.shape)}, expected ({num_envs}, {action_dim})")
-    if not bool(torch.isfinite(action).all()):
+    if values and not bool(torch.isfinite(action).all()):
         bad = (~torch.isfinite(action)).any(-1).nonzero().flatten().tolist()
         raise ValueError(f"action contains NaN or inf (worlds {bad[:8]}); non-finite actions are rejected")
 

@@ -26,6 +26,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..sim import SceneModel, Simulator
+from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
 from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
@@ -42,6 +43,12 @@ class DexEnv(EnvBase):
     A task subclass sets ``asset`` (its MJCF in :mod:`dexmots_rl.assets`), implements the abstract hooks
     and is registered with its config class (:func:`~dexmots_rl.envs.registry.register_task`); it is
     built from a config: ``TaskEnv(config, num_envs=...)`` (``make_env`` does this).
+
+    ``sync_free`` (on a CUDA device always; settable, the tests set it on CPU): the step, reward, reset and
+    observation never read a tensor's value on the host (no ``.item()``, no Python branch on a tensor), so
+    a GPU step never waits for the GPU. Its costs: every step draws the fresh state a blown-up world would
+    be reset to (on CPU it is drawn only when a world blew up), and a non-finite action is not rejected
+    with an error; it blows its world up, which is reset and counted like any other blow-up.
     """
 
     batch_locked = True
@@ -62,6 +69,13 @@ class DexEnv(EnvBase):
         from ..assets import asset_path
 
         return asset_path(cls.asset)
+
+    @classmethod
+    def task_scene(cls, config):
+        """The scene this task simulates for ``config`` (default: its MJCF, :attr:`asset`)."""
+        from ..sim import load_scene
+
+        return load_scene(cls.asset_path())
 
     def __init__(
         self,
@@ -87,11 +101,12 @@ class DexEnv(EnvBase):
         device = check_device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         if scene is None:
-            from ..sim import load_scene
-
-            scene = load_scene(self.asset_path())
-        self.sim = Simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
+            scene = self.task_scene(config)
+        # an articulated object (a base with moving parts on a table) has its own simulator, same interface
+        simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
+        self.sim = simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
                              contact=self.contact_params if contact is None else contact, adjoint_clip=adjoint_clip)
+        self.sync_free = device.type == "cuda"  # see the class docstring
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
         self.param_ranges = self._param_ranges()
@@ -179,6 +194,12 @@ class DexEnv(EnvBase):
         if with_wrench:
             parts.append(ref["joint_torque"] if articulated else ref["wrench"])
         return torch.cat(parts, -1)
+
+    def goal_window_widths(self) -> tuple[int, int]:
+        """``(D, W)``: per reference step, the object coordinates and the wrench entries :meth:`goal_window`
+        writes (an articulation's angles and generalised forces, or a free body's pose and force + torque)."""
+        scene = self.sim.scene
+        return (scene.object_nq, scene.object_nv) if scene.articulated else (7, 6)
 
     def mirror_maps(self):
         """``(maps, action)`` of a mirror-symmetric task (:mod:`..mirror`): the reflection of each policy entry
@@ -284,7 +305,7 @@ class DexEnv(EnvBase):
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(n, 1)
-        if mask is not None and not bool(mask.all()):
+        if mask is not None and (self.sync_free or not bool(mask.all())):
             # partial reset: keep every entry of the worlds that are not reset
             for key in list(obs):
                 old = tensordict.get(key, None)
@@ -315,7 +336,7 @@ class DexEnv(EnvBase):
         action = tensordict.get("action", None)
         if action is None:
             raise KeyError("env.step: the input TensorDict has no 'action'")
-        validate_action(action, self.num_envs, self.actions.action_dim)
+        validate_action(action, self.num_envs, self.actions.action_dim, values=not self.sync_free)
         present = tensordict.keys(True)
         missing = [key for key in self._state_keys() if key not in present]
         if missing:
@@ -346,7 +367,7 @@ class DexEnv(EnvBase):
         failures = tensordict.get(("info", "sim_failures")).clone()
         blown = ~(torch.isfinite(out.joint_q).all(-1, keepdim=True) & torch.isfinite(out.joint_qd).all(-1, keepdim=True))
         blown |= out.joint_qd.detach().abs().amax(-1, keepdim=True).nan_to_num(float("inf")) > MAX_JOINT_SPEED
-        if bool(blown.any()):
+        if self.sync_free or bool(blown.any()):
             # reset the worlds that blew up so that no NaN reaches the batch; count them
             fresh = self._initial_obs()
             fresh.update({("reward_terms", name): torch.zeros_like(terms[name]) for name in self.reward_terms})

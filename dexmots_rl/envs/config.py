@@ -64,7 +64,8 @@ class TaskConfig:
     action: str = dataclasses.field(default="vi", metadata=rule(choices=ACTION_TYPES))
     max_episode_steps: int = 100  # env steps per episode (60 Hz control)
     substeps: int = 16  # physics substeps per env step
-    references: Optional[str] = None  # plan file / directory from dexmots-plan; None: the task's analytic reference
+    # plan file / directory from dexmots-plan (from Python also a list of plans); None: the task's analytic reference
+    references: Optional[str] = dataclasses.field(default=None, metadata=rule(objects=True))
     reward: RewardCoefficients = dataclasses.field(default_factory=RewardCoefficients)  # paper Eq. 3's λ
     mirror: bool = False  # worlds with a negative goal see the task mirrored (a mirror-symmetric task's option)
 

@@ -37,12 +37,15 @@ _NO_RULE: Mapping[str, Any] = types.MappingProxyType({})
 
 
 def rule(*, gt: float | None = None, ge: float | None = None, lt: float | None = None, le: float | None = None,
-         choices: tuple[str, ...] | str | None = None, ordered: bool = False, empty: bool = False) -> dict:
+         choices: tuple[str, ...] | str | None = None, ordered: bool = False, empty: bool = False,
+         objects: bool = False) -> dict:
     """Field metadata for :func:`validate_fields`: bounds on a number (or on each element of a tuple),
     the allowed strings (``choices``: a tuple, or the name of a class attribute holding one), ``ordered``:
-    a pair is ``(low, high)`` with ``low <= high``; ``empty``: a tuple may be empty."""
+    a pair is ``(low, high)`` with ``low <= high``; ``empty``: a tuple may be empty; ``objects``: from Python the
+    field may also hold a non-empty list of objects (e.g. plans in memory instead of a plan file), checked where
+    they are used."""
     return {"check": {"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices, "ordered": ordered,
-                      "empty": empty}}
+                      "empty": empty, "objects": objects}}
 
 
 def _bounds_text(r: Mapping[str, Any]) -> str:
@@ -96,6 +99,8 @@ def check_value(name: str, value, annotation, r: Mapping[str, Any] | None = None
     if annotation in (int, float):
         return _number(name, value, annotation, r)
     if annotation is str:
+        if r.get("objects") and isinstance(value, (list, tuple)) and len(value) > 0:
+            return value
         choices = r.get("choices")
         if isinstance(choices, str):
             choices = getattr(owner, choices)

@@ -80,10 +80,9 @@ def task_config(name: str, **overrides: Any) -> TaskConfig:
 
 
 def task_scene(name: str):
-    """The :class:`~dexmots_rl.sim.SceneModel` of a task's MJCF (e.g. for the wrench planner)."""
-    from ..sim import load_scene
-
-    return load_scene(task_entry(name).env_class.asset_path())
+    """The scene a task's env simulates with its default config (e.g. for the wrench planner): a
+    :class:`~dexmots_rl.sim.SceneModel`, or an articulated object's scene."""
+    return task_entry(name).env_class.task_scene(task_config(name))
 
 
 def task_contact(name: str):

@@ -89,9 +89,7 @@ class GoalConditioning(StateTransform):
         env = self._task()
         if self.mode == "pose":
             return env.goal_dim, env.goal_dim
-        articulated = env.sim.scene.articulated
-        coords = env.sim.scene.object_nq if articulated else 7
-        wrench = env.sim.scene.object_nv if articulated else 6
+        coords, wrench = env.goal_window_widths()
         return self.horizon * (coords + (wrench if self.mode == "pose_wrench" else 0)), self.horizon * coords
 
     def _goal(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:

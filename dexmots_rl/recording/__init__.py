@@ -7,6 +7,6 @@ from __future__ import annotations
 
 from .format import Recording, RecordingFormatError
 from .reader import read_recording
-from .recorder import EpisodeRecorder
+from .recorder import EpisodeRecorder, record_simulation
 
-__all__ = ["EpisodeRecorder", "Recording", "RecordingFormatError", "read_recording"]
+__all__ = ["EpisodeRecorder", "Recording", "RecordingFormatError", "read_recording", "record_simulation"]

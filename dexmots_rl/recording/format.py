@@ -4,13 +4,15 @@
 topic                  schema (encoding)           content
 =====================  ==========================  ====================================================
 ``/tf``                ``foxglove.FrameTransforms``  every frame: ``world`` -> ``world{w}`` (the world's
-                       (protobuf)                    place in the grid), ``world{w}`` -> ``world{w}/link{i}``
-                                                     (hand links), ``world{w}/object`` and
-                                                     ``world{w}/goal`` (the object at its goal pose)
-``/scene``             ``foxglove.SceneUpdate``      once: frame-locked entities ``world{w}/link{i}``
-                       (protobuf)                    (spheres + cylinders; metadata ``geometry`` holds them
-                                                     exactly as JSON), ``world{w}/object`` (triangle mesh),
-                                                     ``world{w}/goal`` (the same mesh, translucent)
+                       (protobuf)                    place in the grid), ``world{w}`` -> ``world{w}/{body}``
+                                                     for every recorded body (the hand's links, then the
+                                                     object's bodies, by MJCF name), and ``world{w}/goal``
+                                                     (the object's base at its goal pose)
+``/scene``             ``foxglove.SceneUpdate``      once: frame-locked entities ``world{w}/part{k}`` (a
+                       (protobuf)                    triangle mesh in its body's frame, or in ``world{w}``
+                                                     for the palm, static parts and the table; metadata
+                                                     ``name``, ``role``, ``body``), ``world{w}/goal`` (the
+                                                     object at rest, translucent)
 ``/scene/wrench``      ``foxglove.SceneUpdate``      every frame: arrows at the object, in ``world{w}``:
                                                      actual / target force and torque
 ``/dexmots/step``      ``dexmots.Step`` (JSON)       every frame: ``frame``, ``episode``, ``time`` and per
@@ -20,8 +22,9 @@ topic                  schema (encoding)           content
 =====================  ==========================  ====================================================
 
 An MCAP metadata record ``dexmots`` holds ``format``, ``version``, ``task``, ``num_worlds``,
-``num_frames``, ``dt``, ``dtype``, ``body_names`` (JSON), ``world_offsets`` (JSON), ``start_time_ns`` and
-the arrow scales ``force_scale`` / ``torque_scale``. A frame's log time is ``start_time_ns + frame * dt``;
+``num_frames``, ``dt``, ``dtype``, ``body_names`` (JSON), ``num_hand_links``, ``world_offsets`` (JSON),
+``start_time_ns``, the arrow scales ``force_scale`` / ``torque_scale`` and ``goal`` (``"false"`` when the
+recorded task has no goal pose: the ghost then sits on the object and is hidden at first). A frame's log time is ``start_time_ns + frame * dt``;
 episodes follow each other on one timeline (``episode`` says which). Poses are position + ``wxyz`` quaternion
 (Foxglove's ``xyzw`` on ``/tf``); float values go through float64 (protobuf doubles, JSON ``repr``), so
 a float32 recording reads back bit-exact. In Foxglove: a 3D panel (fixed frame ``world``) and a Plot
@@ -45,7 +48,7 @@ __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "TF_TOPIC", "SCENE_TOPIC", "WRENCH_T
            "STEP_SCHEMA", "RecordingFormatError", "Recording", "world_frame", "body_frame"]
 
 FORMAT_NAME = "dexmots-recording"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 TF_TOPIC, SCENE_TOPIC, WRENCH_TOPIC, STEP_TOPIC = "/tf", "/scene", "/scene/wrench", "/dexmots/step"
 ROOT_FRAME = "world"
 STEP_SCHEMA_NAME = "dexmots.Step"
@@ -75,9 +78,9 @@ def world_frame(w: int) -> str:
     return f"{ROOT_FRAME}{w}"
 
 
-def body_frame(w: int, body: int, num_bodies: int) -> str:
-    """``world{w}/link{i}`` for hand links, ``world{w}/object`` for the last body."""
-    return f"{world_frame(w)}/object" if body == num_bodies - 1 else f"{world_frame(w)}/link{body}"
+def body_frame(w: int, name: str) -> str:
+    """``world{w}/{name}``: the frame of recorded body ``name`` (its MJCF name) in world ``w``."""
+    return f"{world_frame(w)}/{name}"
 
 
 @dataclasses.dataclass

@@ -27,9 +27,9 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from .geometry import LinkGeometry, SceneGeometry
 from .format import (FORMAT_NAME, FORMAT_VERSION, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, Recording,
-                        RecordingFormatError, body_frame, world_frame)
+                     RecordingFormatError, body_frame, world_frame)
+from .geometry import MeshPart, SceneGeometry
 
 __all__ = ["read_recording", "RecordingFormatError"]
 
@@ -73,27 +73,33 @@ def _records(path: Path, data: bytes):
     return out
 
 
-def _geometry(path: Path, scene, num_bodies: int, body_names: list[str]) -> SceneGeometry:
-    entities = {e.id: e for e in scene.entities}
-    links = []
-    for i in range(num_bodies - 1):
-        e = entities.get(f"world0/link{i}")
-        meta = {kv.key: kv.value for kv in e.metadata} if e is not None else {}
-        if "geometry" not in meta:
-            raise RecordingFormatError(f"{path}: /scene has no geometry for link {i}")
-        geo = json.loads(meta["geometry"])
-        links.append(LinkGeometry(np.asarray(geo["spheres"], dtype=np.float64).reshape(-1, 4),
-                                  np.asarray(geo["segments"], dtype=np.float64).reshape(-1, 7)))
-    obj = entities.get("world0/object")
-    if obj is None or not obj.triangles:
-        raise RecordingFormatError(f"{path}: /scene has no object mesh")
-    tri = obj.triangles[0]
+def _triangles(entity) -> tuple[np.ndarray, np.ndarray, tuple]:
+    tri = entity.triangles[0]
     verts = np.array([[p.x, p.y, p.z] for p in tri.points], dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(tri.indices, dtype=np.int64).reshape(-1, 3)
-    base = entities.get("world0/base")  # an operable object's static base (absent otherwise)
-    meta = {kv.key: kv.value for kv in base.metadata} if base is not None else {}
-    boxes = np.asarray(json.loads(meta.get("base_boxes", "[]")), dtype=np.float64).reshape(-1, 10)
-    return SceneGeometry(body_names, links, verts, faces, boxes)
+    c = tri.color
+    return verts, np.asarray(tri.indices, dtype=np.int64).reshape(-1, 3), (c.r, c.g, c.b, c.a)
+
+
+def _geometry(path: Path, scene, body_names: list[str], num_hand_links: int) -> SceneGeometry:
+    """The drawn scene from world 0's entities of the first ``/scene`` message."""
+    parts, ghost = [], None
+    for e in scene.entities:
+        if not e.id.startswith("world0/"):
+            continue
+        meta = {kv.key: kv.value for kv in e.metadata}
+        if not e.triangles:
+            raise RecordingFormatError(f"{path}: /scene entity {e.id} has no triangles")
+        verts, faces, rgba = _triangles(e)
+        if e.id == "world0/goal":
+            ghost = (verts, faces)
+            continue
+        body = int(meta["body"])
+        if not -1 <= body < len(body_names):
+            raise RecordingFormatError(f"{path}: /scene entity {e.id} names body {body} of {len(body_names)}")
+        parts.append(MeshPart(meta["name"], meta["role"], body, verts, faces, rgba))
+    if ghost is None or not parts:
+        raise RecordingFormatError(f"{path}: /scene has no meshes for world 0")
+    return SceneGeometry(body_names, num_hand_links, parts, *ghost)
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
@@ -113,6 +119,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
                                    f"version {FORMAT_VERSION}")
     try:
         n, body_names = int(meta["num_worlds"]), json.loads(meta["body_names"])
+        num_hand_links = int(meta["num_hand_links"])
         dtype = getattr(torch, meta["dtype"])
         num_bodies = len(body_names)
         by_topic: dict[str, list] = {}
@@ -124,11 +131,11 @@ def read_recording(path: str | os.PathLike) -> Recording:
         if len(tfs) != len(steps) or [m.log_time for m in tfs] != [m.log_time for m in steps]:
             raise RecordingFormatError(f"{path}: {len(tfs)} {TF_TOPIC} and {len(steps)} {STEP_TOPIC} messages "
                                        "do not pair up frame by frame")
-        geometry = _geometry(path, SceneUpdate.FromString(by_topic[SCENE_TOPIC][0].data), num_bodies, body_names)
+        geometry = _geometry(path, SceneUpdate.FromString(by_topic[SCENE_TOPIC][0].data), body_names, num_hand_links)
         body = np.zeros((len(tfs), n, num_bodies, 7))
         goal = np.zeros((len(tfs), n, 7))
         offsets = np.zeros((n, 3))
-        names = {body_frame(w, b, num_bodies): (w, b) for w in range(n) for b in range(num_bodies)}
+        names = {body_frame(w, name): (w, b) for w in range(n) for b, name in enumerate(body_names)}
         goals = {f"{world_frame(w)}/goal": w for w in range(n)}
         worlds = {world_frame(w): w for w in range(n)}
         for f, m in enumerate(tfs):

@@ -33,18 +33,17 @@ import torch
 from tensordict import TensorDictBase
 
 from ..atomic import atomic_write
-from .geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, scene_geometry
 from .format import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
-                        WRENCH_TOPIC, body_frame, world_frame)
+                     WRENCH_TOPIC, body_frame, world_frame)
+from .geometry import scene_geometry
+from .scene_messages import arrow_style, arrows_update, protobuf_types, scene_update
 
-__all__ = ["EpisodeRecorder", "grid_offsets", "FORCE_SCALE", "TORQUE_SCALE"]
+__all__ = ["EpisodeRecorder", "record_simulation", "grid_offsets", "FORCE_SCALE", "TORQUE_SCALE"]
 
 log = logging.getLogger(__name__)
 
 GOAL_STEP = 10**6  # the reference at this step is the end of the plan (the goal ghost)
 FORCE_SCALE, TORQUE_SCALE = 1e-3, 0.2  # arrow length per N (m/N) and per N m (m/(N m))
-FORCE_RGBA, TARGET_FORCE_RGBA = (0.90, 0.20, 0.20, 1.0), (0.20, 0.80, 0.20, 0.8)
-TORQUE_RGBA, TARGET_TORQUE_RGBA = (0.95, 0.60, 0.10, 1.0), (0.20, 0.60, 0.95, 0.8)
 
 
 def grid_offsets(num_worlds: int, spacing: float) -> np.ndarray:
@@ -59,41 +58,16 @@ def _task_name(base) -> str:
     return getattr(config, "name", None) or type(base).__name__
 
 
-def _pb():
-    from foxglove_schemas_protobuf import (ArrowPrimitive_pb2, Color_pb2, CylinderPrimitive_pb2, FrameTransform_pb2,
-                                           FrameTransforms_pb2, KeyValuePair_pb2, Point3_pb2, Pose_pb2,
-                                           Quaternion_pb2, SceneEntity_pb2, SceneUpdate_pb2, SpherePrimitive_pb2,
-                                           TriangleListPrimitive_pb2, Vector3_pb2)
-
-    return {m: getattr(mod, m) for mod, m in [
-        (ArrowPrimitive_pb2, "ArrowPrimitive"), (Color_pb2, "Color"), (CylinderPrimitive_pb2, "CylinderPrimitive"),
-        (FrameTransform_pb2, "FrameTransform"), (FrameTransforms_pb2, "FrameTransforms"),
-        (KeyValuePair_pb2, "KeyValuePair"), (Point3_pb2, "Point3"), (Pose_pb2, "Pose"),
-        (Quaternion_pb2, "Quaternion"), (SceneEntity_pb2, "SceneEntity"), (SceneUpdate_pb2, "SceneUpdate"),
-        (SpherePrimitive_pb2, "SpherePrimitive"), (TriangleListPrimitive_pb2, "TriangleListPrimitive"),
-        (Vector3_pb2, "Vector3")]}
-
-
-def _quat_from_to(src: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float]:
-    """``(x, y, z, w)`` of the shortest rotation taking unit ``src`` to unit ``d``."""
-    c = float(np.dot(src, d))
-    if c < -1 + 1e-9:  # opposite: half turn about any axis orthogonal to src
-        axis = np.cross(src, [0.0, 0.0, 1.0] if abs(src[2]) < 0.9 else [1.0, 0.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return float(axis[0]), float(axis[1]), float(axis[2]), 0.0
-    v = np.cross(src, d)
-    q = np.array([v[0], v[1], v[2], 1.0 + c])
-    q /= np.linalg.norm(q)
-    return tuple(float(x) for x in q)
-
-
 class EpisodeRecorder:
-    """Record frames of ``env`` (a ``DexEnv`` or a ``TransformedEnv`` over one) to ``path``; see the module docstring.
+    """Record frames of ``env`` (a ``DexEnv``, a ``TransformedEnv`` over one, or a simulator: a
+    :class:`~dexmots_rl.sim.Simulator` or :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`) to ``path``;
+    see the module docstring.
 
     ``record(td)`` takes one frame: the TensorDict ``env.reset()`` returns, or the ``"next"`` entry of a
-    step. The wrench arrows start on the object's bounding sphere (in their own direction, so they stick
-    out of the object); ``force_scale`` (m/N) and ``torque_scale`` (m/(N m)) set their lengths, clipped
-    to a third of the spacing between worlds.
+    step (for a simulator: ``("sim", "joint_q")`` and optionally ``("object", "wrench")``). The wrench
+    arrows start where they leave the object's bounding box and are sized by the scene
+    (:func:`~dexmots_rl.recording.scene_messages.arrow_style`); ``force_scale`` (m/N) and ``torque_scale``
+    (m/(N m)) set their lengths.
     """
 
     def __init__(self, path: str | os.PathLike, env, *, live: bool = False, start_time_ns: int | None = None,
@@ -101,24 +75,29 @@ class EpisodeRecorder:
                  world_spacing: float | None = None, task: str | None = None):
         self.path = Path(path)
         self.base = getattr(env, "base_env", env)
-        self.sim = self.base.sim
-        self.num_worlds = int(self.base.batch_size[0])
+        self.sim = getattr(self.base, "sim", self.base)
+        self.num_worlds = int(self.base.batch_size[0]) if hasattr(self.base, "batch_size") else int(
+            self.sim.num_worlds)
         self.num_bodies = int(self.sim.num_bodies)
-        self.geometry = scene_geometry(self.sim.scene)
+        # an env over a library object built its scene in a temporary folder: its asset rebuilds the MJCF
+        self.geometry = scene_geometry(self.sim.scene, asset=getattr(self.base, "object_asset", None))
+        if len(self.geometry.body_names) != self.num_bodies:
+            raise ValueError(f"{self.sim.scene.path}: the simulator poses {self.num_bodies} bodies, the scene names "
+                             f"{len(self.geometry.body_names)}")
         self.live, self.dt = live, float(self.sim.dt)
         self.start_time_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
         self.force_scale, self.torque_scale = force_scale, torque_scale
         self.world_spacing = world_spacing
         self.task = task or _task_name(self.base)
+        self._style = None
+        self._has_goal = True  # until a frame has no goal pose
         self.episode, self.num_frames = 0, 0
         self._frames_in_episode = 0
         self._messages: list[tuple[str, int, bytes]] = []
         self._offsets: np.ndarray | None = None
         self._warned: set[str] = set()
         self._closed = False
-        self._pb = _pb()
-        verts = self.geometry.object_vertices
-        self._bound = float(np.linalg.norm(verts, axis=1).max()) if len(verts) else 0.0
+        self._pb = protobuf_types()
 
     # --------------------------------------------------------------------------------------- public
     def record(self, td: TensorDictBase) -> None:
@@ -135,11 +114,13 @@ class EpisodeRecorder:
             goal_pose, target = self._reference(td, body_pose)
         if self._offsets is None:
             self._offsets = grid_offsets(n, self.world_spacing or self._spacing(body_pose[0]))
+            self._style = arrow_style(self.geometry, body_pose[0])
         t_ns = self.start_time_ns + round(self.num_frames * self.dt * 1e9)
         if self.num_frames == 0:
             self._messages.append((SCENE_TOPIC, t_ns, self._scene_update(t_ns).SerializeToString()))
         self._messages.append((TF_TOPIC, t_ns, self._transforms(t_ns, body_pose, goal_pose).SerializeToString()))
-        wrench = td.get(("object", "wrench")).detach().cpu()
+        wrench = td.get(("object", "wrench"), None)
+        wrench = torch.zeros(n, 6) if wrench is None else wrench.detach().cpu()
         self._messages.append((WRENCH_TOPIC, t_ns, self._arrows(t_ns, body_pose, wrench.double().numpy(),
                                                                 target.double().numpy()).SerializeToString()))
         step = self._step_message(td, target)
@@ -195,12 +176,18 @@ class EpisodeRecorder:
     def _reference(self, td, body_pose: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
         """Goal pose [N, 7] (the end of the reference plan) and the target wrench [N, 6] now."""
         n = self.num_worlds
-        goal = body_pose[:, -1].copy()
+        goal = body_pose[:, self.geometry.num_hand_links].copy()
         target = torch.zeros(n, 6, dtype=torch.float64)
+        if not hasattr(self.base, "reference"):  # a bare simulator: no task, no goal
+            self._has_goal = False
+            return goal, target
         try:  # references clamp steps to their plan: a step past any episode is the plan's end, the goal
             last = torch.full((n, 1), GOAL_STEP, dtype=torch.int64, device=self.base.device)
-            goal = self.base.reference(td, last)["pose"][:, 0].detach().cpu().double().numpy()
+            ref = self.base.reference(td, last)["pose"][:, 0].detach().cpu().double().numpy()
+            valid = np.abs(np.linalg.norm(ref[:, 3:7], axis=-1) - 1.0) < 1e-3  # a fixed base may say zeros
+            goal = np.where(valid[:, None], ref, goal)
         except Exception as exc:  # a task without references: the ghost sits on the object
+            self._has_goal = False
             self._warn_once("a goal pose", exc)
         try:
             target = self.base.reference(td, td.get(("task", "step")))["wrench"][:, 0].detach().cpu()
@@ -209,23 +196,8 @@ class EpisodeRecorder:
         return goal, target
 
     def _spacing(self, poses: np.ndarray) -> float:
-        g = self.geometry
-        radii = [float(np.linalg.norm(l.spheres[:, :3], axis=1).max() + l.spheres[:, 3].max()) if len(l.spheres)
-                 else 0.0 for l in g.links]
-        radii.append(float(np.linalg.norm(g.object_vertices, axis=1).max()) if len(g.object_vertices) else 0.0)
-        centre = 0.5 * (poses[:, :3].min(0) + poses[:, :3].max(0))
-        reach = max(float(np.linalg.norm(p[:3] - centre)) + r for p, r in zip(poses, radii))
-        return round(2.4 * reach, 3)
-
-    def _color(self, rgba):
-        r, g, b, a = rgba
-        return self._pb["Color"](r=r, g=g, b=b, a=a)
-
-    def _pose(self, pos, quat_xyzw=(0.0, 0.0, 0.0, 1.0)):
-        pb = self._pb
-        x, y, z, w = quat_xyzw
-        return pb["Pose"](position=pb["Vector3"](x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
-                          orientation=pb["Quaternion"](x=x, y=y, z=z, w=w))
+        pts = self.geometry.world_points(poses)
+        return round(1.2 * float(np.ptp(pts, 0)[:2].max()), 3) if len(pts) else 1.0
 
     def _timestamp(self, t_ns: int):
         from google.protobuf.timestamp_pb2 import Timestamp
@@ -233,42 +205,7 @@ class EpisodeRecorder:
         return Timestamp(seconds=t_ns // 1_000_000_000, nanos=t_ns % 1_000_000_000)
 
     def _scene_update(self, t_ns: int):
-        pb, g, ts = self._pb, self.geometry, self._timestamp(t_ns)
-        verts = [pb["Point3"](x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in g.object_vertices]
-        indices = [int(i) for i in g.object_faces.reshape(-1)]
-        update = pb["SceneUpdate"]()
-        for w in range(self.num_worlds):
-            for i, link in enumerate(g.links):
-                frame = body_frame(w, i, self.num_bodies)
-                e = update.entities.add(timestamp=ts, frame_id=frame, id=f"world{w}/link{i}", frame_locked=True)
-                e.metadata.append(pb["KeyValuePair"](key="body", value=g.body_names[i]))
-                e.metadata.append(pb["KeyValuePair"](key="geometry", value=json.dumps(
-                    {"spheres": link.spheres.tolist(), "segments": link.segments.tolist()})))
-                for s in link.spheres:
-                    d = 2 * float(s[3])
-                    e.spheres.add(pose=self._pose(s[:3]), size=pb["Vector3"](x=d, y=d, z=d),
-                                  color=self._color(HAND_RGBA))
-                for seg in link.segments:
-                    p0, p1, d = seg[:3], seg[3:6], 2 * float(seg[6])
-                    length = float(np.linalg.norm(p1 - p0))
-                    e.cylinders.add(pose=self._pose(0.5 * (p0 + p1), _quat_from_to(np.array([0, 0, 1.0]),
-                                                                                   (p1 - p0) / length)),
-                                    size=pb["Vector3"](x=d, y=d, z=length), bottom_scale=1.0, top_scale=1.0,
-                                    color=self._color(HAND_RGBA))
-            for kind, frame, rgba in (("object", body_frame(w, self.num_bodies - 1, self.num_bodies), OBJECT_RGBA),
-                                      ("goal", f"{world_frame(w)}/goal", GOAL_RGBA)):
-                e = update.entities.add(timestamp=ts, frame_id=frame, id=f"world{w}/{kind}", frame_locked=True)
-                e.metadata.append(pb["KeyValuePair"](key="body", value=kind))
-                e.triangles.add(pose=self._pose((0, 0, 0)), points=verts, indices=indices, color=self._color(rgba))
-            if len(g.base_boxes):  # an operable object's static base: cubes in the world's frame
-                e = update.entities.add(timestamp=ts, frame_id=world_frame(w), id=f"world{w}/base", frame_locked=True)
-                e.metadata.append(pb["KeyValuePair"](key="base_boxes", value=json.dumps(g.base_boxes.tolist())))
-                for box in g.base_boxes:
-                    qw, qx, qy, qz = (float(x) for x in box[3:7])
-                    e.cubes.add(pose=self._pose(box[:3], (qx, qy, qz, qw)),
-                                size=pb["Vector3"](x=2 * float(box[7]), y=2 * float(box[8]), z=2 * float(box[9])),
-                                color=self._color(BASE_RGBA))
-        return update
+        return scene_update(self._pb, self.geometry, self.num_worlds, self._timestamp(t_ns))
 
     def _transforms(self, t_ns: int, body_pose: np.ndarray, goal_pose: np.ndarray):
         pb, ts = self._pb, self._timestamp(t_ns)
@@ -283,32 +220,16 @@ class EpisodeRecorder:
         for w in range(self.num_worlds):
             wf = world_frame(w)
             add(ROOT_FRAME, wf, [*self._offsets[w], 1.0, 0.0, 0.0, 0.0])
-            for b in range(self.num_bodies):
-                add(wf, body_frame(w, b, self.num_bodies), body_pose[w, b])
+            for b, name in enumerate(self.geometry.body_names):
+                add(wf, body_frame(w, name), body_pose[w, b])
             add(wf, f"{wf}/goal", goal_pose[w])
         return msg
 
     def _arrows(self, t_ns: int, body_pose: np.ndarray, wrench: np.ndarray, target: np.ndarray):
-        pb, ts = self._pb, self._timestamp(t_ns)
-        update = pb["SceneUpdate"]()
-        longest = 0.33 * float(np.linalg.norm(self._offsets[1] - self._offsets[0])) if self.num_worlds > 1 else 1.0
-        x_axis = np.array([1.0, 0.0, 0.0])
-        for w in range(self.num_worlds):
-            e = update.entities.add(timestamp=ts, frame_id=world_frame(w), id=f"world{w}/wrench", frame_locked=True)
-            centre = body_pose[w, -1, :3]
-            for vec, scale, rgba in ((wrench[w, :3], self.force_scale, FORCE_RGBA),
-                                     (target[w, :3], self.force_scale, TARGET_FORCE_RGBA),
-                                     (wrench[w, 3:], self.torque_scale, TORQUE_RGBA),
-                                     (target[w, 3:], self.torque_scale, TARGET_TORQUE_RGBA)):
-                norm = float(np.linalg.norm(vec))
-                length = min(norm * scale, longest)
-                if not np.isfinite(norm) or length < 1e-4:
-                    continue
-                head = min(0.3 * length, 0.06)
-                origin = centre + self._bound * vec / norm  # on the object's bounding sphere
-                e.arrows.add(pose=self._pose(origin, _quat_from_to(x_axis, vec / norm)), shaft_length=length - head,
-                             shaft_diameter=0.015, head_length=head, head_diameter=0.04, color=self._color(rgba))
-        return update
+        f, t = self.force_scale, self.torque_scale
+        vectors = np.stack([wrench[:, :3] * f, target[:, :3] * f, wrench[:, 3:] * t, target[:, 3:] * t], 1)
+        base = body_pose[:, self.geometry.num_hand_links]
+        return arrows_update(self._pb, self._style, self._timestamp(t_ns), base, vectors)
 
     def _step_message(self, td, target: torch.Tensor) -> dict:
         n = self.num_worlds
@@ -358,16 +279,48 @@ class EpisodeRecorder:
             WRENCH_TOPIC: writer.register_channel(WRENCH_TOPIC, "protobuf", scene_schema),
             STEP_TOPIC: writer.register_channel(STEP_TOPIC, "json", step_schema),
         }
-        dtype = str(self.base.dtype).replace("torch.", "")
+        dtype = str(getattr(self.base, "dtype", None) or self.sim.dtype).replace("torch.", "")
         writer.add_metadata("dexmots", {
             "format": FORMAT_NAME, "version": str(FORMAT_VERSION), "task": str(self.task),
             "num_worlds": str(self.num_worlds), "num_frames": str(self.num_frames), "dt": repr(self.dt),
             "dtype": dtype, "body_names": json.dumps(self.geometry.body_names),
+            "num_hand_links": str(self.geometry.num_hand_links),
             "world_offsets": json.dumps(self._offsets.tolist()), "start_time_ns": str(self.start_time_ns),
             "force_scale": repr(self.force_scale), "torque_scale": repr(self.torque_scale),
+            "goal": "true" if self._has_goal else "false",
         })
         sequence: dict[str, int] = {}
         for topic, t_ns, data in self._messages:
             seq = sequence[topic] = sequence.get(topic, -1) + 1
             writer.add_message(channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=seq)
         writer.finish()
+
+
+def record_simulation(sim, steps: int, path: str | os.PathLike, control=None, state=None, params=None,
+                      **recorder_kwargs) -> Path:
+    """Step a simulator ``steps`` times and record its initial state and every step to ``path`` (one episode).
+
+    ``state``: ``(joint_q, joint_qd)`` to start from (default ``sim.initial_state()``); ``control``: a
+    :class:`~dexmots_rl.sim.Control`, or a callable ``control(step, joint_q, joint_qd)`` returning one
+    (default: zero); ``params``: the named parameters (default ``sim.default_params()``). Keyword arguments
+    go to :class:`EpisodeRecorder`.
+    """
+    from tensordict import TensorDict
+
+    joint_q, joint_qd = state if state is not None else sim.initial_state()
+    params = sim.default_params() if params is None else params
+    n = joint_q.shape[0]
+
+    def frame(q, wrench):
+        return TensorDict({("sim", "joint_q"): q, ("object", "wrench"): wrench}, batch_size=[n])
+
+    with EpisodeRecorder(path, sim, **recorder_kwargs) as rec:
+        rec.record(frame(joint_q, torch.zeros(n, 6, dtype=joint_q.dtype)))
+        with torch.no_grad():
+            for k in range(steps):
+                u = control(k, joint_q, joint_qd) if callable(control) else control or sim.zero_control()
+                out = sim.step(joint_q, joint_qd, u, params)
+                joint_q, joint_qd = out.joint_q, out.joint_qd
+                rec.record(frame(joint_q, out.wrench))
+        rec.end_episode()
+    return Path(path)

@@ -1,7 +1,10 @@
 """Differentiable simulation core (the only package that imports warp).
 
-``load_scene`` (MJCF via MuJoCo) -> ``Simulator`` (kernels + model arrays on a device) -> ``step``
-(state tensors in, state tensors out, through the ``SimStep`` autograd Function).
+``load_scene`` (MJCF via MuJoCo) -> a simulator (kernels + model arrays on a device) -> ``step`` (state tensors
+in, state tensors out, through an autograd Function). A scene whose object is one hinged or free body (the knob,
+the cube) is a :class:`SceneModel` stepped by :class:`Simulator`; a hand with an articulated object on a table
+(a base with moving parts) is an :class:`ArticulatedScene` stepped by :class:`ArticulatedSimulator`, with the same
+interface; the object alone on its table is :class:`ObjectSimulator`.
 """
 
 from __future__ import annotations
@@ -21,5 +24,8 @@ if os.environ.get("DEXMOTS_VERIFY_AUTOGRAD"):
 
 from .model import AssetError, ContactParams, SceneModel, load_scene  # noqa: E402
 from .simulator import Control, SimStep, Simulator, StepOutput  # noqa: E402
+from .articulated import ArticulatedScene, ArticulatedSimulator  # noqa: E402
+from .object_sim import ObjectSimulator, TableContact, load_object_tree  # noqa: E402
 
-__all__ = ["AssetError", "ContactParams", "SceneModel", "load_scene", "Control", "SimStep", "Simulator", "StepOutput"]
+__all__ = ["AssetError", "ContactParams", "SceneModel", "load_scene", "Control", "SimStep", "Simulator", "StepOutput",
+           "ArticulatedScene", "ArticulatedSimulator", "ObjectSimulator", "TableContact", "load_object_tree"]

@@ -5,147 +5,32 @@ with moving parts, sim/object_model.py). :class:`ArticulatedSimulator` steps it 
 :class:`~dexmots_rl.sim.Simulator` (state ``joint_q``/``joint_qd`` = the hand's joints then the object's
 coordinates, a :class:`~dexmots_rl.sim.Control`, named per-world parameters), so envs use either.
 
-One substep is six launches over all worlds (each kernel module documents its part): the object's frames, the
-table's contact (a thread per world and body), the fingers' contact (a thread per world and finger sphere), the
-sum of each body's contacts, the object tree's solve and the hand's (a thread per world and finger). The
-launches are recorded once per trajectory of buffers and replayed, their adjoints in reverse for the gradient
-(sim/articulated_stepper.py).
+One substep is six launches over all worlds, seven when the palm collides (each kernel module documents its
+part): the object's frames, the table's contact (a thread per world and body), the palm's (the same), the
+fingers' contact (a thread per world and finger sphere), the sum of each body's contacts, the object tree's solve
+and the hand's (a thread per world and finger). The launches are recorded once per trajectory of buffers and
+replayed, their adjoints in reverse for the gradient (sim/articulated_stepper.py).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import weakref
 
 import numpy as np
 import torch
 import warp as wp
 
-from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SPHERE, build_hand_kernels
+from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from .articulated_stepper import ArticulatedTrajectory
-from .mjcf_shapes import _quat_to_mat
+from .hand_kernels import build_hand_kernels
+from .object_model import MAX_SAMPLES
+from .palm_object_kernels import build_palm_object_kernels
 from .model import ContactParams
-from .object_model import ObjectTree
 from .object_sim import ObjectSimulator, TableContact
 
-__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStep", "object_geoms"]
+__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStep", "ObjectGeoms", "object_geoms"]
 
 LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
-
-
-@dataclasses.dataclass
-class ObjectGeoms:
-    """The object's collision geoms for finger contact, per body (``[B, G]``, G the most any body has):
-    kind (GEOM_*; GEOM_NONE pads), centre (m) and rotation in the body frame, sizes (m: box half sizes; sphere
-    radius; capsule and cylinder radius and half length). A mesh geom collides as its oriented bounding box."""
-
-    kind: np.ndarray
-    pos: np.ndarray
-    rot: np.ndarray
-    size: np.ndarray
-
-    def bound(self, margin: float = 1.0e-3) -> np.ndarray:
-        """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
-        (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
-        radius = np.linalg.norm(self.size, axis=-1)  # box: half diagonal
-        radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
-        radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
-        reach = np.linalg.norm(self.pos, axis=-1) + radius
-        reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
-        return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)
-
-
-def object_geoms(m) -> ObjectGeoms:
-    """Read the collision geoms of body ``object`` and its descendants from a compiled model."""
-    import mujoco
-    import trimesh
-
-    root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
-    bodies = [root] + [b for b in range(root + 1, m.nbody) if _descends(m, b, root)]
-    per_body = []
-    for b in bodies:
-        geoms = []
-        for g in range(m.ngeom):
-            if m.geom_bodyid[g] != b or not (m.geom_contype[g] or m.geom_conaffinity[g]):
-                continue
-            kind, size = int(m.geom_type[g]), np.asarray(m.geom_size[g], dtype=np.float64)
-            pos, rot = m.geom_pos[g].copy(), _quat_to_mat(m.geom_quat[g])
-            if kind == mujoco.mjtGeom.mjGEOM_BOX:
-                geoms.append((GEOM_BOX, pos, rot, size[:3]))
-            elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-                geoms.append((GEOM_SPHERE, pos, rot, np.array([size[0], 0.0, 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-                geoms.append((GEOM_CAPSULE, pos, rot, np.array([size[0], size[1], 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-                geoms.append((GEOM_CYLINDER, pos, rot, np.array([size[0], size[1], 0.0])))
-            elif kind == mujoco.mjtGeom.mjGEOM_MESH:
-                mid = m.geom_dataid[g]
-                verts = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
-                box = trimesh.PointCloud(verts).bounding_box_oriented
-                local = np.asarray(box.primitive.transform)
-                geoms.append((GEOM_BOX, pos + rot @ local[:3, 3], rot @ local[:3, :3],
-                              np.asarray(box.primitive.extents) / 2))
-        per_body.append(geoms)
-    width = max(1, max(len(g) for g in per_body))
-    kind = np.full((len(bodies), width), GEOM_NONE, dtype=np.int32)
-    pos, size = np.zeros((len(bodies), width, 3)), np.zeros((len(bodies), width, 3))
-    rot = np.tile(np.eye(3), (len(bodies), width, 1, 1))
-    for b, geoms in enumerate(per_body):
-        for g, (k, p, r, s) in enumerate(geoms):
-            kind[b, g], pos[b, g], rot[b, g], size[b, g] = k, p, r, s
-    return ObjectGeoms(kind, pos, rot, size)
-
-
-def _descends(m, b: int, root: int) -> bool:
-    while b > 0:
-        if b == root:
-            return True
-        b = int(m.body_parentid[b])
-    return False
-
-
-@dataclasses.dataclass
-class ArticulatedScene:
-    """A fixed-mount hand (``hand``: the hand fields of :class:`~dexmots_rl.sim.SceneModel`, by name) and an
-    articulated object (``tree``, ``geoms``); ``palm``: the palm's colliding boxes (world frame; not yet in
-    contact with the object)."""
-
-    path: str
-    hand: dict
-    tree: ObjectTree
-    geoms: ObjectGeoms
-    palm: tuple
-
-    def __getattr__(self, name):  # the hand's fields read like SceneModel's (scene.num_fingers, ...)
-        hand = self.__dict__.get("hand")
-        if hand is not None and name in hand:
-            return hand[name]
-        raise AttributeError(name)
-
-    articulated = True
-
-    @property
-    def num_hand_dofs(self) -> int:
-        return self.hand["num_fingers"] * self.hand["joints_per_finger"]
-
-    @property
-    def object_nq(self) -> int:
-        return self.tree.nq
-
-    @property
-    def object_nv(self) -> int:
-        return self.tree.nv
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return self.tree.param_names
-
-    def default_param_values(self) -> dict[str, float]:
-        return self.tree.default_param_values()
-
-    @property
-    def object_q0(self) -> np.ndarray:
-        return self.tree.q0
 
 
 class ArticulatedSimulator(ObjectSimulator):
@@ -154,12 +39,18 @@ class ArticulatedSimulator(ObjectSimulator):
 
     def __init__(self, scene: ArticulatedScene, num_worlds: int, device: str = "cpu",
                  dtype: torch.dtype = torch.float32, substeps: int = 16, dt: float | None = None,
-                 contact: ContactParams | None = None, table: TableContact | None = None):
+                 contact: ContactParams | None = None, table: TableContact | None = None,
+                 adjoint_clip: float | None = None):
+        if adjoint_clip is not None and not adjoint_clip >= 1.0:
+            raise ValueError(f"adjoint_clip must be None or >= 1 (a multiple of the median world), got {adjoint_clip}")
         sub_dt = scene.timestep if dt is None else dt / substeps
         super().__init__(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps, sub_dt=sub_dt,
                          table=table, gravity=scene.gravity)
         self.scene = scene
         self.contact = contact or ContactParams()
+        # Simulator's outlier-world gradient clip (a training option), applied in ArticulatedStep.backward
+        self.adjoint_clip = adjoint_clip
+        self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)
         if (np.asarray(scene.joint_type) != 0).any():
             raise ValueError("an articulated-object scene's hand joints must all be hinges")
         self.nu = scene.num_hand_dofs
@@ -167,6 +58,12 @@ class ArticulatedSimulator(ObjectSimulator):
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
                                                scene.points_per_link, scene.tree.num_bodies, scene.geoms.kind.shape[1])
         self.hand_model = self._make_hand_model()
+        self.palm_kernels, self.palm_model = self._make_palm()
+
+    @property
+    def clipped_adjoints(self) -> int:
+        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down (as :class:`~dexmots_rl.sim.Simulator`)."""
+        return int(self._clipped)
 
     @property
     def nq(self) -> int:
@@ -175,6 +72,25 @@ class ArticulatedSimulator(ObjectSimulator):
     @property
     def nv(self) -> int:
         return self.nu + self.tree.nv
+
+    def _make_palm(self):
+        """The palm's kernel and model (None, None when the scene's palm does not collide with the object)."""
+        pos, rot, half = self.scene.palm
+        if len(pos) == 0:
+            return None, None
+        k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, MAX_SAMPLES, len(pos))
+        wdt, c, t = self.kernels.dtype, self.table, self.tree
+
+        def arr(x, dtype):
+            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
+
+        m = k.Model()
+        m.box_pos, m.box_rot, m.box_half = arr(pos, k.vec3), arr(rot, k.mat33), arr(half, k.vec3)
+        m.sample_pos, m.sample_radius = arr(t.sample_pos, k.vec3), arr(t.sample_radius, wdt)
+        # the table's law: both are rigid surfaces the object's samples rest on
+        m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
+                                                               c.slip_velocity))
+        return k, m
 
     def _make_hand_model(self):
         s, k, c, geoms = self.scene, self.hand_kernels, self.contact, self.scene.geoms
@@ -214,11 +130,6 @@ class ArticulatedSimulator(ObjectSimulator):
         z = self._zeros(self.num_worlds, self.nu)
         return Control(z, z, z, z)
 
-    @property
-    def num_params_packed(self) -> int:
-        """Columns of :meth:`pack_params`' result."""
-        return len(self.param_names) or 4
-
     def step(self, joint_q, joint_qd, control, params):
         """One env step; returns a :class:`~dexmots_rl.sim.StepOutput` (the hand's contact wrench on the object
         is summed over its bodies, torque about the base origin)."""
@@ -246,6 +157,11 @@ class ArticulatedSimulator(ObjectSimulator):
             wp.launch(h.observe, dim=n, inputs=[self.hand_model, hq, frames[0], frames[1]],
                       outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
+
+    @property
+    def num_params_packed(self) -> int:
+        """Columns of :meth:`pack_params`' result."""
+        return len(self.param_names) or 4
 
     def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
         """A gradient-free step on one persistent trajectory (no adjoint buffers)."""
@@ -297,4 +213,8 @@ class ArticulatedStep(torch.autograd.Function):
         grads = ctx.traj.backward(grad_outputs)
         ctx.sim._return_trajectory(ctx.traj, ctx.lease)
         ctx.traj = None
+        if ctx.sim.adjoint_clip is not None:
+            from .simulator import _clip_outlier_worlds
+
+            grads = _clip_outlier_worlds(ctx.sim, grads)
         return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])

@@ -53,12 +53,16 @@ class ArticulatedTrajectory:
         self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
                      wp.zeros(sub_rows, dtype=k.dtype, device=sim.device),
                      new(wp.int32, len(sim.scene.point_radius))]
+        # table + palm contact (the palm's kernel adds its push to the table's), when the palm collides
+        self.palm = [] if sim.palm_kernels is None else [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb),
+                                                         new(k.mat33, nb), new(k.mat33, nb)]
         self.total = [new(k.vec3, nb), new(k.vec3, nb)]
         self.scratch = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb),
                         new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
         self.final_frames = [new(k.vec3, nb, n), new(k.mat33, nb, n), new(k.vec3, nb, n), new(k.vec3, nb, n),
                              new(k.vec3, nb, n)]
-        self._warp = self.frames + self.table + self.hand + self.total + self.scratch + self.final_frames
+        self._warp = (self.frames + self.table + self.palm + self.hand + self.total + self.scratch
+                      + self.final_frames)
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
         self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
@@ -79,10 +83,11 @@ class ArticulatedTrajectory:
         dt, weight = wdt(sim.sub_dt), wdt(1.0 / self.steps)
         num_points = len(sim.scene.point_radius)
 
-        def launches(a, model, hand_model, only_touching):
+        def launches(a, model, hand_model, palm_model, only_touching):
             hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips = a[:14]
-            frames, table, hand, total, scratch, final = (a[14:19], a[19:24], a[24:29], a[29:31], a[31:39],
-                                                          a[39:44])
+            cut = 24 + len(self.palm)
+            frames, table, palm = a[14:19], a[19:24], a[24:cut]
+            hand, total, scratch, final = a[cut:cut + 5], a[cut + 5:cut + 7], a[cut + 7:cut + 15], a[cut + 15:cut + 20]
 
             def rows(arr, s):  # substep s's rows of this block
                 return arr[s * n + lo: s * n + hi]
@@ -98,6 +103,11 @@ class ArticulatedTrajectory:
                 out.append((k.frames, dim, [model, state[2], state[3], *fr]))
                 if k.table:
                     out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, *fr, dt, *tb]))
+                if palm:
+                    with_palm = [rows(x, s) for x in palm]
+                    out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
+                                [palm_model, *fr, dt, *tb, *with_palm]))
+                    tb = with_palm
                 out.append((h.finger_contact, (dim, num_points),
                             [hand_model, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
                              only_touching]))
@@ -116,11 +126,12 @@ class ArticulatedTrajectory:
 
         if adjoint_arrays is None:
             return [prepared(wp.launch(kernel, dim=d, inputs=args, device=sim.device, record_cmd=True))
-                    for kernel, d, args in launches(arrays, sim.model, sim.hand_model, 0)]
+                    for kernel, d, args in launches(arrays, sim.model, sim.hand_model, sim.palm_model, 0)]
         # the finger contact's adjoint skips the spheres that touched nothing (their adjoint is zero: most of
         # them, and most of the reverse pass's time otherwise)
-        forward = launches(arrays, sim.model, sim.hand_model, 1)
-        adjoint = launches(adjoint_arrays, k.Model(), h.Model(), 0)  # null model adjoints: no model gradients
+        forward = launches(arrays, sim.model, sim.hand_model, sim.palm_model, 1)
+        palm_adjoint = None if sim.palm_kernels is None else sim.palm_kernels.Model()
+        adjoint = launches(adjoint_arrays, k.Model(), h.Model(), palm_adjoint, 0)  # null model adjoints
         cmds = []
         for (kernel, d, args), (_, _, adj_args) in zip(reversed(forward), reversed(adjoint)):
             adj_args = [x if isinstance(x, wp.array) or hasattr(x, "_cls") else type(x)(0) for x in adj_args]

@@ -213,7 +213,7 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
     obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
     if is_articulated_scene(m):
-        from .articulated import ArticulatedScene, object_geoms
+        from .articulated_scene import ArticulatedScene, object_geoms
         from .object_model import object_tree
 
         return ArticulatedScene(path=str(path), hand=hand_fields, tree=object_tree(m, d), geoms=object_geoms(m),

@@ -22,9 +22,7 @@ import warp as wp
 
 __all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
 
-LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth
-LIMIT_CURVE = 0.5 / LIMIT_WIDTH
-LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
+LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth, or 5 % of a shorter range
 JOINT_FRICTION_VELOCITY = 0.05  # rad/s (or m/s): smoothing of the joints' Coulomb friction
 
 
@@ -58,6 +56,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         jlower: wp.array(dtype=dtype)  # [NP] rad or m
         jupper: wp.array(dtype=dtype)
         limit_ke: wp.array(dtype=dtype)  # [NP] N m/rad or N/m: the range stops' stiffness
+        limit_width: wp.array(dtype=dtype)  # [NP] rad or m: depth over which a stop stiffens (smooth)
         armature: wp.array(dtype=dtype)  # [NP]
         ancestor: wp.array2d(dtype=dtype)  # [B, NP] 1 where joint k moves body b
         mass: wp.array(dtype=dtype)  # [B] kg
@@ -79,19 +78,20 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
 
     @wp.func
-    def limit_ramp(x: dtype):
+    def limit_ramp(x: dtype, width: dtype):
+        # C1 penalty ramp: zero inside the range, quadratic over ``width``, then linear
         if x <= dtype(0.0):
             return dtype(0.0)
-        if x < dtype(LIMIT_WIDTH):
-            return x * x * dtype(LIMIT_CURVE)
-        return x - dtype(LIMIT_OFFSET)
+        if x < width:
+            return x * x / (dtype(2.0) * width)
+        return x - dtype(0.5) * width
 
     @wp.func
-    def limit_slope(x: dtype):
+    def limit_slope(x: dtype, width: dtype):
         if x <= dtype(0.0):
             return dtype(0.0)
-        if x < dtype(LIMIT_WIDTH):
-            return x * dtype(2.0 * LIMIT_CURVE)
+        if x < width:
+            return x / width
         return dtype(1.0)
 
     @wp.func
@@ -267,8 +267,9 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             lo = m.jlower[k] - qp
             hi = qp - m.jupper[k]
             force = -damp * qdj[k] - fric * wp.tanh(qdj[k] / dtype(JOINT_FRICTION_VELOCITY)) - spring * (qp - rest)
-            force = force + m.limit_ke[k] * (limit_ramp(lo) - limit_ramp(hi))
-            stiff = spring + m.limit_ke[k] * (limit_slope(lo) + limit_slope(hi))
+            width = m.limit_width[k]
+            force = force + m.limit_ke[k] * (limit_ramp(lo, width) - limit_ramp(hi, width))
+            stiff = spring + m.limit_ke[k] * (limit_slope(lo, width) + limit_slope(hi, width))
             r3 = r3 + force * unit_p(k)
             e = unit_p(k)
             M33 = M33 + (m.armature[k] + dt * damp + dt * dt * stiff) * wp.outer(e, e)

@@ -24,7 +24,7 @@ import warp as wp
 from tensordict import TensorDict
 
 from .mjcf_shapes import AssetError
-from .object_kernels import build_object_kernels
+from .object_kernels import LIMIT_WIDTH, build_object_kernels
 from .object_model import MAX_SAMPLES, ObjectTree, object_tree
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
@@ -117,6 +117,9 @@ class ObjectSimulator:
         m.jlower, m.jupper = arr(rng[:, 0], wdt), arr(rng[:, 1], wdt)
         # each stop as stiff as a LIMIT_FREQUENCY oscillator on the joint's own inertia (at the initial pose)
         m.limit_ke = arr(pad(t.joint_inertia, (1,)) * LIMIT_FREQUENCY**2, wdt)
+        # a stop stiffens over LIMIT_WIDTH, or over 5 % of a short range (a pump's 12 mm stroke)
+        span = pad(t.joint_range[:, 1] - t.joint_range[:, 0], (1,)) if t.num_parts else np.ones(1)
+        m.limit_width = arr(np.minimum(LIMIT_WIDTH, 0.05 * span), wdt)
         m.armature = arr(pad(t.armature, (1,)), wdt)
         m.ancestor = arr(t.ancestor if t.num_parts else np.zeros((t.num_bodies, 1)), wdt)
         m.mass, m.com, m.inertia = arr(t.mass, wdt), arr(t.com, k.vec3), arr(t.inertia, k.mat33)

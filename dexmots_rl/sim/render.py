@@ -54,7 +54,7 @@ from .render_kernels import (
     place_segments,
     render_kernel,
 )
-from .stepper import cpu_threads, run_blocks
+from .stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["Camera", "Renderer", "default_camera", "reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND",
            "LABEL_OBJECT"]
@@ -254,12 +254,13 @@ class Renderer:
         w_lab = wp.from_torch(lab.view(n, h * w), dtype=wp.uint8) if labels else self._no_labels
         total = n * h * w
         segs = self._segment_buffers(n)
+        stream = launch_stream(self.device)  # CUDA: torch's stream, ordered with the tensors around the launches
         wp.launch(place_segments, dim=(n, self._num_segments), inputs=[self._scene, pose], outputs=list(segs),
-                  device=self.device)
+                  device=self.device, stream=stream)
 
         def launch(lo, hi):
             wp.launch(render_kernel, dim=hi - lo, inputs=[self._scene, self._view, pose, *segs, *self._background, lo],
-                      outputs=[w_image, w_lab, int(labels)], device=self.device)
+                      outputs=[w_image, w_lab, int(labels)], device=self.device, stream=stream)
 
         if total:
             run_blocks(launch, self._blocks(total))

@@ -20,7 +20,7 @@ from tensordict import TensorDict
 from .kernels import build_kernels
 from .mjcf_shapes import MAX_PLANES
 from .model import HINGE, ContactParams, SceneModel
-from .stepper import Trajectory
+from .stepper import Trajectory, launch_stream
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep", "check_device"]
 
@@ -155,7 +155,10 @@ class Simulator:
         self.dt = self.sub_dt * substeps
         self.contact = contact or ContactParams()
         self.adjoint_clip = adjoint_clip
-        self.clipped_adjoints = 0  # worlds x steps whose adjoint adjoint_clip scaled down, since construction
+        self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)  # see clipped_adjoints
+        # run each env step's launches as captured graphs (stepper.py): always on CUDA; on CPU the blocks of
+        # worlds in threads are faster, and setting this before the first step selects the graphs there too
+        self.graphs = not self.device.is_cpu
         self.nq = scene.num_hand_dofs + scene.object_nq
         self.nv = scene.num_hand_dofs + scene.object_nv
         self.nu = scene.num_hand_dofs
@@ -236,6 +239,12 @@ class Simulator:
             m.palm_smooth = wdt(c.palm_smoothing)
         return m
 
+    @property
+    def clipped_adjoints(self) -> int:
+        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down, since construction (counted on the
+        device; reading it synchronises, so read it once per iteration, not per step)."""
+        return int(self._clipped)
+
     def _zeros(self, *shape):
         return torch.zeros(*shape, dtype=self.dtype, device=self.torch_device)
 
@@ -295,7 +304,8 @@ class Simulator:
         pose = self._zeros(joint_q.shape[0], self.num_bodies * 7)
         tips = self._zeros(joint_q.shape[0], self.scene.num_fingers * 3)
         wp.launch(self.kernels.observe, dim=joint_q.shape[0], inputs=[self.model, q, qd],
-                  outputs=[wp.from_torch(pose), wp.from_torch(tips), 0], device=self.device)
+                  outputs=[wp.from_torch(pose), wp.from_torch(tips), 0], device=self.device,
+                  stream=launch_stream(self.device))
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
     def adjoint_model(self):
@@ -339,7 +349,7 @@ def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor | None]) -> li
     state = torch.cat([grads[0], grads[1]], dim=-1).norm(dim=-1)
     limit = sim.adjoint_clip * state.median()
     scale = torch.where(state > limit, limit / state.clamp_min(torch.finfo(state.dtype).tiny), torch.ones_like(state))
-    sim.clipped_adjoints += int((scale < 1).sum())
+    sim._clipped += (scale < 1).sum()  # on the device: no host synchronisation in the backward pass
     return [None if g is None else g * scale.view(-1, *([1] * (g.dim() - 1))) for g in grads]
 
 

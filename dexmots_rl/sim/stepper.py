@@ -3,9 +3,18 @@
 Every array of a :class:`Trajectory` holds the whole env step: row ``s * N + w`` is world ``w`` after
 ``s`` substeps. Each row is written exactly once, so one set of warp arrays serves every substep, the
 adjoint launches can run over the same arrays in reverse substep order, and nothing is allocated per
-substep. Worlds are split into one block per CPU core; each block's launches run in their own thread
-(a warp CPU launch runs on one core and releases the GIL). The reverse pass is driven by hand (adjoint
-launches) rather than by ``wp.Tape``: same kernels, same adjoints, a fraction of the Python overhead.
+substep. The reverse pass is driven by hand (adjoint launches) rather than by ``wp.Tape``: same kernels,
+same adjoints, a fraction of the Python overhead.
+
+Two ways to run the recorded launches:
+
+* CPU (default there): worlds are split into one block per core; each block's launches run in their own
+  thread (a warp CPU launch runs on one core and releases the GIL), through :func:`prepared` calls.
+* graphs (always on CUDA): one launch per kernel over all worlds; the forward launches of the step, and
+  separately its reverse launches, are captured once as a graph (``wp.ScopedCapture``) and replayed with
+  ``wp.capture_launch`` on torch's current stream, so the torch copies before and after a step are
+  ordered with it on the GPU and nothing waits on the host. ``Simulator.graphs = True`` selects this on
+  CPU too (warp replays a CPU graph in C++; the tests run the graph path that way).
 """
 
 from __future__ import annotations
@@ -17,7 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 import torch
 import warp as wp
 
-__all__ = ["Trajectory", "cpu_threads", "run_blocks", "world_blocks"]
+__all__ = ["Trajectory", "capture_graph", "cpu_threads", "launch_stream", "replay_graph", "run_blocks",
+           "world_blocks"]
 
 MIN_WORLDS_PER_THREAD = 32  # below this a second CPU thread costs more than it saves
 _POOL: ThreadPoolExecutor | None = None
@@ -93,6 +103,46 @@ def prepared(cmd):
     return run
 
 
+_TORCH_STREAMS: dict = {}  # (device, cuda stream handle) -> wp.Stream wrapping it
+
+
+def launch_stream(device):
+    """The warp stream to launch on so that work is ordered with torch's: torch's current CUDA stream
+    (wrapped once per stream handle; no host synchronisation), or None on CPU."""
+    if device.is_cpu:
+        return None
+    torch_stream = torch.cuda.current_stream(torch.device("cuda", device.ordinal))
+    key = (device.ordinal, torch_stream.cuda_stream)
+    stream = _TORCH_STREAMS.get(key)
+    if stream is None:
+        stream = _TORCH_STREAMS[key] = wp.Stream(device, cuda_stream=torch_stream.cuda_stream)
+        stream._torch_stream = torch_stream  # keep torch's stream object alive with its wrapper
+    return stream
+
+
+def capture_graph(device, launches):
+    """A graph of recorded warp launches (``wp.launch(..., record_cmd=True)``), for :func:`replay_graph`.
+    On CUDA the capture runs on a stream of its own (the legacy default stream, torch's default, cannot
+    be captured); the graph does not depend on it afterwards."""
+    if device.is_cpu:
+        with wp.ScopedCapture(device=device) as capture:
+            for cmd in launches:
+                cmd.launch()
+        return capture.graph
+    stream = wp.Stream(device)
+    with wp.ScopedCapture(stream=stream) as capture:
+        for cmd in launches:
+            cmd.launch(stream)
+    graph = capture.graph
+    graph.capture_stream = stream
+    return graph
+
+
+def replay_graph(graph, device) -> None:
+    """Replay a :func:`capture_graph` graph (on CUDA: on torch's current stream, asynchronously)."""
+    wp.capture_launch(graph, stream=launch_stream(device))
+
+
 class Trajectory:
     """Buffers and launches for one env step of ``sim.num_worlds`` worlds.
 
@@ -122,11 +172,15 @@ class Trajectory:
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.num_params), z(n, 6)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
-        self.blocks = world_blocks(n, sim.device)
+        self.graphs = bool(getattr(sim, "graphs", not sim.device.is_cpu))
+        self.blocks = [(0, n)] if self.graphs else world_blocks(n, sim.device)
         self.w_traj, self.w_acc, self.w_controls, self.w_final, self.w_obs = self._wrap(
             self.q, self.qd, self.wrench, self.cforce, self.controls, self.pose, self.tips)
-        self._forward_cmds = {lo: self._launches(lo, hi) for lo, hi in self.blocks}
-        self._reverse_cmds = None  # recorded at the first backward pass
+        if self.graphs:
+            self._forward_graph = capture_graph(sim.device, self._launches(0, n))
+        else:
+            self._forward_cmds = {lo: [prepared(c) for c in self._launches(lo, hi)] for lo, hi in self.blocks}
+        self._reverse_cmds = None  # recorded at the first backward pass (a graph, or per-block calls)
         self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
 
     def _wrap(self, q, qd, wrench, cforce, controls, pose, tips):
@@ -149,8 +203,8 @@ class Trajectory:
                 (s + 1) * self.n, sim.sub_dt, 1.0 / sim.substeps]
 
     def _launches(self, lo: int, hi: int, adjoint: bool = False):
-        """The launches of block [lo, hi), recorded and :func:`prepared`: the substeps then the
-        observation, or, with ``adjoint``, their adjoints in reverse order."""
+        """The recorded launches of block [lo, hi): the substeps then the observation, or, with
+        ``adjoint``, their adjoints in reverse order."""
         sim, dim = self.sim, hi - lo
         observe_args = [sim.model, *self.w_final, *self.w_obs, lo]
         if not adjoint:
@@ -158,7 +212,7 @@ class Trajectory:
                              record_cmd=True) for s in range(sim.substeps)]
             out.append(wp.launch(sim.kernels.observe, dim=dim, inputs=observe_args, device=sim.device,
                                  record_cmd=True))
-            return [prepared(cmd) for cmd in out]
+            return out
         adj_traj, adj_acc, adj_controls, adj_final, adj_obs = self._adj_wrapped
         adj_model = sim.adjoint_model()
         out = [wp.launch(sim.kernels.observe, dim=dim, inputs=observe_args, device=sim.device, adjoint=True,
@@ -168,9 +222,12 @@ class Trajectory:
                                  adjoint=True, record_cmd=True,
                                  adj_inputs=[adj_model, *adj_traj, *adj_controls, *adj_acc, sim.kernels.Saved(),
                                              0, 0, 0, 0.0, 0.0]))
-        return [prepared(cmd) for cmd in out]
+        return out
 
     def forward(self) -> None:
+        if self.graphs:
+            replay_graph(self._forward_graph, self.sim.device)
+            return
         run_blocks(lambda lo, hi: [launch() for launch in self._forward_cmds[lo]], self.blocks)
 
     def outputs(self) -> list[torch.Tensor]:
@@ -195,13 +252,23 @@ class Trajectory:
             # zeroed by warp (one memset): torch would split a buffer this size over its OpenMP threads,
             # which then spin on the cores the warp blocks need (measured: reverse pass 4 -> 6.5 ms)
             self._w_adj_flat = wp.from_torch(self._adj_flat)
-            self._reverse_cmds = {lo: self._launches(lo, hi, adjoint=True) for lo, hi in self.blocks}
-        self._w_adj_flat.zero_()
+            if self.graphs:
+                self._reverse_cmds = capture_graph(self.sim.device, self._launches(0, n, adjoint=True))
+            else:
+                self._reverse_cmds = {lo: [prepared(c) for c in self._launches(lo, hi, adjoint=True)]
+                                      for lo, hi in self.blocks}
+        if self.sim.device.is_cpu:
+            self._w_adj_flat.zero_()
+        else:  # on torch's stream, ordered with the copies below and the graph after them
+            self._adj_flat.zero_()
         for target, g in zip(self.adj + self.adj_obs, grad_outputs):
             if g is not None:
                 rows = target[last:] if target.shape[0] != n else target
                 rows.copy_(g.reshape(rows.shape))
-        run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)
+        if self.graphs:
+            replay_graph(self._reverse_cmds, self.sim.device)
+        else:
+            run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)
         # a world that blew up must not poison the others' gradients (the env resets it); nan_to_num
         # also copies, so the returned gradients outlive the buffers' reuse
         grads = [self.adj[0][:n], self.adj[1][:n], *self.adj_controls]

@@ -4,6 +4,6 @@ MCAP recordings of :mod:`dexmots_rl.recording`, whose API is re-exported here.""
 
 from __future__ import annotations
 
-from ..recording import EpisodeRecorder, Recording, RecordingFormatError, read_recording
+from ..recording import EpisodeRecorder, Recording, RecordingFormatError, read_recording, record_simulation
 
-__all__ = ["EpisodeRecorder", "Recording", "RecordingFormatError", "read_recording"]
+__all__ = ["EpisodeRecorder", "Recording", "RecordingFormatError", "read_recording", "record_simulation"]

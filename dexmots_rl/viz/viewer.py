@@ -6,10 +6,12 @@
 
 The page has a timeline slider, play/pause, a speed factor, a world selector (all worlds on a grid, or
 one), the goal ghost (the object at its goal pose, translucent), arrows at the object for the actual
-(red force, orange torque) and target (green force, blue torque) wrench, a readout of the frame, and a
-reward plot (one line per world, or the reward and its terms for one world). Bodies are drawn with one
-batched mesh per hand link and one for the object (instances = worlds), so a frame costs a handful of
-messages however many worlds there are.
+(red force, orange torque) and target (green force, blue torque) wrench, sized by the scene, a readout of
+the frame, and a reward plot (one line per world, or the reward and its terms for one world). Every body
+the recording carries is drawn (the hand's links and palm, each of the object's bodies, the table:
+:mod:`~dexmots_rl.recording.geometry`), each mesh as one batched mesh (instances = worlds), so a frame
+costs a handful of messages however many worlds there are. The first view frames the hand and the
+object (their bounding box at the first frame), seen from ``camera_direction``.
 
 ``--live`` polls the file (every ``--poll`` seconds) and reloads it whenever it changes, following the
 newest frame while playing or parked on the last frame. It works with recordings that are rewritten
@@ -48,10 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..recording.geometry import BASE_RGBA, GOAL_RGBA, HAND_RGBA, OBJECT_RGBA, box_mesh, link_mesh
+from ..recording.format import Recording, RecordingFormatError
+from ..recording.geometry import GOAL_RGBA, STATIC
 from ..recording.reader import read_recording
 from ..recording.recorder import FORCE_SCALE, TORQUE_SCALE
-from ..recording.format import Recording, RecordingFormatError
+from ..recording.scene_messages import arrow_segments, arrow_style
 
 __all__ = ["PortInUseError", "check_port_free", "ReplayViewer", "main"]
 
@@ -60,6 +63,8 @@ log = logging.getLogger(__name__)
 PALETTE = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#9a6324")
 ARROW_COLORS = np.array([[230, 50, 50], [50, 205, 50], [240, 150, 25], [50, 150, 240]], dtype=np.uint8)
 MAX_PLOTTED_WORLDS = 8
+CAMERA_DIRECTION = (0.35, -1.0, 0.6)  # the first view: from the front right of the hand (fingers along +x), above
+CAMERA_MARGIN = 0.9  # the framed bounding sphere's radius times this fills the view's height (its corners may be cut)
 
 
 class PortInUseError(OSError):
@@ -88,12 +93,20 @@ def _rgb(rgba) -> tuple[int, int, int]:
     return tuple(int(round(255 * c)) for c in rgba[:3])
 
 
+def _nice(x: float) -> float:
+    """``x`` rounded down to 1, 2 or 5 times a power of ten (grid cell sizes)."""
+    p = 10.0 ** np.floor(np.log10(x))
+    return float(max(m for m in (1, 2, 5) if m * p <= x) * p)
+
+
 class ReplayViewer:
     """A viser server replaying ``recording`` (a path or a :class:`~dexmots_rl.viz.Recording`); see the module
-    docstring. ``shadows=False`` makes software rendering (headless browsers) much faster."""
+    docstring. ``shadows=False`` makes software rendering (headless browsers) much faster;
+    ``camera_direction``: from the scene's centre toward the first view's camera (world frame)."""
 
     def __init__(self, recording: str | os.PathLike | Recording, host: str = "127.0.0.1", port: int = 8080,
-                 live: bool = False, poll_s: float = 0.5, shadows: bool = True):
+                 live: bool = False, poll_s: float = 0.5, shadows: bool = True,
+                 camera_direction=CAMERA_DIRECTION):
         import viser
 
         self.path = None if isinstance(recording, Recording) else Path(recording)
@@ -110,6 +123,7 @@ class ReplayViewer:
         self.host, self.port = host, self.server.get_port()
         log.info("viewer at %s", self.url)
         self.shadows, self.live = shadows, live
+        self.camera_direction = np.asarray(camera_direction, dtype=np.float64)
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._playing = False
@@ -201,12 +215,10 @@ class ReplayViewer:
             self._wrench = frames["object", "wrench"].double().numpy()
             self._target = frames["target_wrench"].double().numpy()
             self._offsets = rec.world_offsets.double().numpy()
-            spacing = float(np.linalg.norm(self._offsets[1] - self._offsets[0])) if rec.num_worlds > 1 else 2.0
-            self._arrow_max = 0.33 * spacing
-            verts = rec.geometry.object_vertices
-            self._bound = float(np.linalg.norm(verts, axis=1).max()) if len(verts) else 0.0
+            self._style = arrow_style(rec.geometry, pose[0, 0])
             if not same_scene:
                 self._build_scene(rec)
+                self._gui["goal"].value = rec.meta.get("goal", "true") == "true"  # no goal: no ghost
             slider = self._gui["frame"]
             follow = first or self._playing or slider.value >= slider.max
             slider.max = max(rec.num_frames - 1, 1)
@@ -222,36 +234,42 @@ class ReplayViewer:
         self._handles = {}
         m = rec.num_worlds
         ident, zeros = np.tile([1.0, 0, 0, 0], (m, 1)), np.zeros((m, 3))
-        for i, link in enumerate(g.links):
-            verts, faces = link_mesh(link)
-            self._handles[f"link{i}"] = scene.add_batched_meshes_simple(
-                f"/worlds/link{i}", verts, faces, ident, zeros, batched_colors=_rgb(HAND_RGBA), lod="off")
-        self._handles["object"] = scene.add_batched_meshes_simple(
-            "/worlds/object", g.object_vertices, g.object_faces, ident, zeros, batched_colors=_rgb(OBJECT_RGBA),
-            flat_shading=True, lod="off")
-        for b, box in enumerate(g.base_boxes):  # an operable object's static base: placed once per world
-            verts, faces = box_mesh(box[7:])
-            self._handles[f"base{b}"] = scene.add_batched_meshes_simple(
-                f"/worlds/base{b}", verts, faces, np.tile(box[3:7], (m, 1)), self._offsets + box[:3],
-                batched_colors=_rgb(BASE_RGBA), flat_shading=True, lod="off")
+        for k, part in enumerate(g.parts):  # static parts sit at each world's offset, in its frame
+            self._handles[f"part{k}"] = scene.add_batched_meshes_simple(
+                f"/worlds/{part.role}/{k}", part.vertices, part.faces, ident,
+                self._offsets if part.body == STATIC else zeros, batched_colors=_rgb(part.rgba),
+                flat_shading=part.role in ("object", "base", "table"), lod="off",
+                cast_shadow=part.role != "table")
         self._handles["goal"] = scene.add_batched_meshes_simple(
-            "/worlds/goal", g.object_vertices, g.object_faces, ident, zeros, batched_colors=_rgb(GOAL_RGBA),
+            "/worlds/goal", g.ghost_vertices, g.ghost_faces, ident, zeros, batched_colors=_rgb(GOAL_RGBA),
             opacity=GOAL_RGBA[3], flat_shading=True, lod="off", cast_shadow=False)
+        style = self._style
         self._handles["arrows"] = scene.add_arrows("/worlds/wrench", np.zeros((4 * m, 2, 3)),
-                                                   np.tile(ARROW_COLORS, (m, 1)), shaft_radius=0.01,
-                                                   head_radius=0.025, head_length=0.05)
-        pts = (self._offsets[:, None] + self._pos[0]).reshape(-1, 3)  # every body of every world, first frame
-        look = 0.5 * (pts.min(0) + pts.max(0))
-        span = float(np.ptp(pts, 0).max()) + 2 * self._bound + 0.5
-        view = np.array([-0.45, -0.6, 0.75])
-        self.server.initial_camera.look_at = look
-        self.server.initial_camera.position = look + 0.8 * span * view / np.linalg.norm(view)
+                                                   np.tile(ARROW_COLORS, (m, 1)), shaft_radius=style.shaft_radius,
+                                                   head_radius=style.head_radius, head_length=style.head_length)
+        self._frame_camera(rec)
         self._gui["world"].options = ("all", *[str(w) for w in range(rec.num_worlds)])
         self._gui["world"].value = "all" if rec.num_worlds <= 16 else "0"
         scene.configure_default_lights(enabled=True, cast_shadow=self.shadows)
         scene.configure_environment_map("warehouse", environment_intensity=0.2)
-        self._handles["grid"] = scene.add_grid("/grid", width=span * 2, height=span * 2, cell_size=0.25,
-                                               section_size=1.0, position=(look[0], look[1], 0.0))
+
+    def _frame_camera(self, rec: Recording) -> None:
+        """Point the first view at the hand and the object of every world (first frame), and lay the grid under."""
+        g = rec.geometry
+        pts = np.concatenate([g.world_points(np.concatenate([self._pos[0, w], self._quat[0, w]], -1)) + self._offsets[w]
+                              for w in range(rec.num_worlds)])
+        lo, hi = pts.min(0), pts.max(0)
+        look, radius = 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)
+        cam = self.server.initial_camera
+        distance = CAMERA_MARGIN * radius / np.sin(0.5 * cam.fov)
+        view = self.camera_direction / np.linalg.norm(self.camera_direction)
+        cam.look_at = look
+        cam.position = look + distance * view
+        table = [p for p in g.parts if p.role == "table"]
+        floor = min([lo[2]] + [float(p.vertices[:, 2].min()) for p in table]) - 1e-3
+        self._handles["grid"] = self.server.scene.add_grid(
+            "/grid", width=8 * radius, height=8 * radius, cell_size=_nice(radius / 2), section_size=_nice(2 * radius),
+            position=(look[0], look[1], floor))
 
     def _update_plot(self) -> None:
         rec = self.rec
@@ -280,50 +298,43 @@ class ReplayViewer:
 
     # -------------------------------------------------------------------------------------- drawing
     def _show(self) -> None:
-        if self.rec is None or "object" not in self._handles:
+        if self.rec is None or "goal" not in self._handles:
             return
         with self._lock:
             f = int(min(self._gui["frame"].value, self.rec.num_frames - 1))
             worlds = self._worlds()
             off = self._offsets[worlds] if len(worlds) > 1 else self._offsets.mean(0, keepdims=True)
             with self.server.atomic():
-                for i in range(len(self.rec.geometry.links)):
-                    h = self._handles[f"link{i}"]
-                    h.batched_positions = (self._pos[f, worlds, i] + off).astype(np.float32)
-                    h.batched_wxyzs = self._quat[f, worlds, i].astype(np.float32)
-                for b, box in enumerate(self.rec.geometry.base_boxes):
-                    h = self._handles[f"base{b}"]
-                    h.batched_positions = (box[:3] + off).astype(np.float32)
-                    h.batched_wxyzs = np.tile(box[3:7], (len(off), 1)).astype(np.float32)
-                obj = self._handles["object"]
-                obj.batched_positions = (self._pos[f, worlds, -1] + off).astype(np.float32)
-                obj.batched_wxyzs = self._quat[f, worlds, -1].astype(np.float32)
+                for k, part in enumerate(self.rec.geometry.parts):
+                    h = self._handles[f"part{k}"]
+                    if part.body == STATIC:
+                        h.batched_positions = off.astype(np.float32)
+                        h.batched_wxyzs = np.tile([1.0, 0, 0, 0], (len(off), 1)).astype(np.float32)
+                    else:
+                        h.batched_positions = (self._pos[f, worlds, part.body] + off).astype(np.float32)
+                        h.batched_wxyzs = self._quat[f, worlds, part.body].astype(np.float32)
                 goal = self._handles["goal"]
                 goal.visible = bool(self._gui["goal"].value)
                 goal.batched_positions = (self._goal_pos[f, worlds] + off).astype(np.float32)
                 goal.batched_wxyzs = self._goal_quat[f, worlds].astype(np.float32)
                 arrows = self._handles["arrows"]
-                arrows.visible = bool(self._gui["wrench"].value)
-                arrows.points = self._arrow_points(f, worlds, off)
-                arrows.colors = np.tile(ARROW_COLORS, (len(worlds), 1))
+                points, colors = self._arrow_points(f, worlds, off)
+                arrows.visible = bool(self._gui["wrench"].value) and len(points) > 0
+                if len(points):  # an arrow of no length would still draw its head: left out
+                    arrows.colors, arrows.points = colors, points
             self._gui["info"].content = self._readout(f, worlds)
 
-    def _arrow_points(self, f: int, worlds: list[int], off: np.ndarray) -> np.ndarray:
+    def _arrow_points(self, f: int, worlds: list[int], off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start and end [K, 2, 3] and colours [K, 3] of the arrows longer than 0.1 mm."""
         force_scale = float(self.rec.meta.get("force_scale", FORCE_SCALE))
         torque_scale = float(self.rec.meta.get("torque_scale", TORQUE_SCALE))
-        centre = self._pos[f, worlds, -1] + off  # [M, 3]
-        vecs = []
-        for src, a, scale in ((self._wrench, 0, force_scale), (self._target, 0, force_scale),
-                              (self._wrench, 3, torque_scale), (self._target, 3, torque_scale)):
-            v = src[f, worlds, a : a + 3] * scale
-            norm = np.linalg.norm(v, axis=-1, keepdims=True)
-            vecs.append(v * np.minimum(1.0, self._arrow_max / np.maximum(norm, 1e-12)))
-        vec = np.stack(vecs, 1)  # [M, 4, 3]
-        length = np.linalg.norm(vec, axis=-1, keepdims=True)
-        vec = np.where(length < 1e-4, np.array([0, 0, 1e-4]), vec)
-        start = centre[:, None] + self._bound * vec / np.maximum(np.linalg.norm(vec, axis=-1, keepdims=True), 1e-12)
-        pts = np.stack([start, start + vec], 2)  # [M, 4, 2, 3]
-        return pts.reshape(-1, 2, 3).astype(np.float32)
+        base = self.rec.geometry.num_hand_links
+        pose = np.concatenate([self._pos[f, worlds, base] + off, self._quat[f, worlds, base]], -1)  # [M, 7]
+        vecs = np.stack([self._wrench[f, worlds, :3] * force_scale, self._target[f, worlds, :3] * force_scale,
+                         self._wrench[f, worlds, 3:] * torque_scale, self._target[f, worlds, 3:] * torque_scale], 1)
+        pts = arrow_segments(self._style, pose[:, None], vecs).reshape(-1, 2, 3)
+        keep = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=-1) > 1e-4
+        return pts[keep].astype(np.float32), np.tile(ARROW_COLORS, (len(worlds), 1))[keep]
 
     def _readout(self, f: int, worlds: list[int]) -> str:
         fr = self.rec.frames[f]

@@ -62,8 +62,8 @@ def scripted_claw_action(desired_goal: torch.Tensor, squeeze: float = 0.6, twist
     proximal joints slides both fingertips the same way around the knob.
     """
     goal_sign = torch.sign(desired_goal)
-    close = torch.tensor([-squeeze, -squeeze, squeeze, squeeze], dtype=goal_sign.dtype)
-    twist_dir = torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=goal_sign.dtype)
+    close = torch.tensor([-squeeze, -squeeze, squeeze, squeeze], dtype=goal_sign.dtype, device=goal_sign.device)
+    twist_dir = torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=goal_sign.dtype, device=goal_sign.device)
     return (close - twist * goal_sign * twist_dir).clamp(-1, 1)
 
 

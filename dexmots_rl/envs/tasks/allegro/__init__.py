@@ -5,11 +5,12 @@ j0-j15 in that order), capsule links (radius 9.8 mm) and fingertip spheres (12 m
 (IsaacGymEnvs' effort), joint damping 0.1, armature 0.001. ``allegro_rotate`` mounts it palm down over a
 knob (``assets/allegro_knob.xml``), ``repose_cube`` palm up with a cube on its colliding palm box
 (``assets/allegro_cube.xml``); ``spray_bottle``, ``scissors`` and ``stapler`` palm down over an operable
-object (``assets/allegro_<object>.xml``, :mod:`.operate`).
+object (``assets/allegro_<object>.xml``, :mod:`.operate`); ``operate`` over any articulated object of the
+library or a URDF (:mod:`.operate_object`).
 """
 
 from __future__ import annotations
 
-from . import repose, rotate, scissors, spray_bottle, stapler  # noqa: F401  (register the tasks)
+from . import operate_object, repose, rotate, scissors, spray_bottle, stapler  # noqa: F401  (register the tasks)
 
-__all__ = ["repose", "rotate", "scissors", "spray_bottle", "stapler"]
+__all__ = ["operate_object", "repose", "rotate", "scissors", "spray_bottle", "stapler"]

@@ -189,7 +189,7 @@ class ReposeCubeEnv(DexEnv):
             drawn = torch.minimum(torch.maximum(self._rest + noise, self._lower), self._upper)
             hand = torch.where(redraw[:, None], drawn, hand)
             redraw = self.start_penetration(hand) > c.max_start_depth
-            if not bool(redraw.any()):
+            if not self.sync_free and not bool(redraw.any()):  # (sync-free: all the draws, no host read)
                 break
         hand = torch.where(redraw[:, None], self._rest.expand(n, -1), hand)
         cube = self._cube.expand(n, 7)

@@ -1,0 +1,253 @@
+"""``operate``: the Allegro hand operates one joint of any articulated object (a library name or a URDF).
+
+The scene is built from the object (:func:`dexmots_rl.assets.hand_scene.hand_object_scene_xml`): the object
+stands on a table with its grasp point under the palm-down hand (a free base must be held, or it is pushed
+over; a fixed one cannot move), and is simulated by :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`.
+
+Per episode: the operated joint (``task.joint``, default the object's ``operated_joint``) starts at rest and
+its goal is ``rest + goal_fraction (far end - rest)``, the far end being the end of its range farther from
+rest (90 % of the travel by default: the original code's goal); every joint's damping, Coulomb friction and
+spring stiffness are drawn within ``param_scale`` (relative) of the object's values. The hand starts open
+above the object (``initial="open"``) with joint noise. Success at the episode end: the joint within
+``success_band`` (a fraction of its range) of the goal, and a free base moved less than ``max_base_shift`` and
+tilted less than ``max_base_tilt`` from where it stood.
+
+Observations: ``("object", "q")`` / ``("object", "qd")`` are the object's joints (every part's), ``("object",
+"pose")`` the operated part's pose and ``("object", "base_pose")`` the base's; the goal is the operated joint's
+angle (or position). Reference: the joint ramps from rest to the goal over ``ramp_steps`` steps, with the torque
+the object's nominal spring, damping and friction need. Reward: ``λ_pose`` tracking of the reference angle, the
+fingertips' closeness to the operated part (``λ_f``), the action penalty (``λ_act``), and the base's stillness
+(``lambda_base`` exp(-shift / max_base_shift - tilt / max_base_tilt)). The wrench reward term is not computed
+for these objects yet (the goal window still carries the reference torque).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import ClassVar, Optional
+
+import torch
+from tensordict import TensorDict
+
+from ...base import DexEnv
+from ...registry import register_task
+from .operate import HAND_CONTACT
+from ...config import TaskConfig, rule
+from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward, distal_weighted_joint_weights, \
+    fingertip_reward
+
+__all__ = ["OperateObjectConfig", "OperateObjectEnv", "build_scene"]
+
+OPEN = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)  # rad: fingers slightly curled, the thumb opposed
+FRICTION_VELOCITY = 0.05  # rad/s: the simulator's smoothing of joint Coulomb friction
+
+
+@dataclasses.dataclass
+class OperateObjectConfig(TaskConfig):
+    """Fields of ``operate``."""
+
+    name: str = "operate"
+    object: str = "spray_bottle_a"  # a library object (dexmots_rl.assets.objects.list_objects) or a .urdf path
+    joint: Optional[str] = None  # the operated joint (None: the object's operated_joint)
+    initial: str = dataclasses.field(default="open", metadata=rule(choices="initial_choices"))
+    initial_choices: ClassVar[tuple[str, ...]] = ("open",)
+    goal_fraction: float = dataclasses.field(default=0.9, metadata=rule(gt=0, le=1))  # of the joint's travel
+    success_band: float = dataclasses.field(default=0.1, metadata=rule(gt=0, le=1))  # of the joint's range
+    max_base_shift: float = 0.02  # m: a free base moved farther fails
+    max_base_tilt: float = 0.2  # rad: a free base tilted more fails
+    param_scale: float = dataclasses.field(default=0.3, metadata=rule(ge=0, lt=1))  # relative spread of the draws
+    joint_noise: float = dataclasses.field(default=0.02, metadata=rule(ge=0))  # rad, on the start pose
+    ramp_steps: int = 40
+    max_episode_steps: int = 150
+    pose_scale: float = 0.1  # of the joint's range: r_pose = exp(-|q - ref| / (pose_scale range))
+    fingertip_scale: float = 0.05  # m
+    lambda_base: float = dataclasses.field(default=0.5, metadata=rule(ge=0))  # weight of the base's stillness
+    reward: RewardCoefficients = dataclasses.field(
+        default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.0, lambda_act=0.01, lambda_f=0.5))
+
+
+def scene_dir(object_name: str) -> Path:
+    """Where the scene of ``object_name`` is written (its MJCF and mesh files; the recorder and the viewer read
+    it back): ``$DEXMOTS_CACHE`` or ``~/.cache/dexmots_rl``, then ``scenes/<object>-<hash>``."""
+    root = Path(os.environ.get("DEXMOTS_CACHE", Path.home() / ".cache" / "dexmots_rl"))
+    digest = hashlib.sha1(str(Path(object_name).resolve() if object_name.endswith(".urdf") else object_name)
+                          .encode()).hexdigest()[:10]
+    return root / "scenes" / f"{Path(object_name).stem}-{digest}"
+
+
+def build_scene(object_name: str):
+    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
+    and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none)."""
+    from ....assets.hand_scene import hand_object_scene_xml
+    from ....assets.objects import load_object
+    from ....sim import load_scene
+
+    asset = load_object(object_name)
+    folder = scene_dir(object_name)
+    folder.mkdir(parents=True, exist_ok=True)
+    xml = hand_object_scene_xml(asset, folder)
+    with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".xml", delete=False) as tmp:
+        tmp.write(xml)
+    path = folder / "scene.xml"
+    os.replace(tmp.name, path)
+    return load_scene(path), asset
+
+
+def _pose(pos, rot) -> list[float]:
+    """pos + wxyz quaternion of a rotation matrix."""
+    import mujoco
+    import numpy as np
+
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.asarray(rot, dtype=np.float64).ravel())
+    return [*pos, *quat]
+
+
+class OperateObjectEnv(DexEnv):
+    """The Allegro hand and an articulated object; see the module docstring."""
+
+    contact_params = HAND_CONTACT
+    reward_terms = ("pose", "action", "fingertip", "base")
+    breakdowns = {"goal": ("task", "goal")}
+
+    @classmethod
+    def asset_path(cls):
+        raise ValueError("task 'operate' builds its scene from task.object (operate_object.build_scene)")
+
+    @classmethod
+    def task_scene(cls, config):
+        return build_scene(config.object)[0]
+
+    def __init__(self, config: OperateObjectConfig, scene=None, **kwargs):
+        self.object_asset = None
+        if scene is None:
+            scene, self.object_asset = build_scene(config.object)
+        tree = scene.tree
+        name = config.joint or (self.object_asset.operated_joint if self.object_asset else "") or tree.joint_names[0]
+        if name not in tree.joint_names:
+            raise ValueError(f"task.joint: {name!r} is not a joint of {config.object!r}; its joints: {tree.joint_names}")
+        self.joint_index = tree.joint_names.index(name)
+        self.joint_name = name
+        super().__init__(config, scene=scene, **kwargs)
+        c, dev, dt = self.config, self.device, self.dtype
+        lo, hi = (float(v) for v in tree.joint_range[self.joint_index])
+        rest = float(tree.q0[7 * tree.free + self.joint_index])
+        far = hi if hi - rest >= rest - lo else lo
+        self.joint_rest, self.joint_span = rest, hi - lo
+        self.goal_value = rest + c.goal_fraction * (far - rest)
+        self._open = torch.as_tensor(OPEN, dtype=dt, device=dev)
+        self._lower = torch.as_tensor(scene.dof_lower, dtype=dt, device=dev)
+        self._upper = torch.as_tensor(scene.dof_upper, dtype=dt, device=dev)
+        self._base0 = torch.as_tensor(tree.q0[:7] if tree.free else _pose(tree.offset_pos[0], tree.offset_rot[0]),
+                                      dtype=dt, device=dev)
+        j = self.joint_index
+        self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
+        weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
+        self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
+
+    def _param_ranges(self) -> dict:
+        s = self.config.param_scale
+        return {name: (v * (1 - s), v * (1 + s)) for name, v in self.sim.scene.default_param_values().items()
+                if not name.endswith("/rest")}
+
+    # ----------------------------------------------------------------------------------- episodes
+    def sample_initial(self, n: int) -> dict:
+        noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
+        hand = torch.minimum(torch.maximum(self._open + noise, self._lower), self._upper)
+        obj = torch.as_tensor(self.sim.tree.q0, dtype=self.dtype, device=self.device).expand(n, -1)
+        return {
+            "joint_q": torch.cat([hand, obj], -1),
+            "joint_qd": torch.zeros(n, self.sim.nv, dtype=self.dtype, device=self.device),
+            "params": self.sample_params(n),
+            "goal": torch.full((n, 1), self.goal_value, dtype=self.dtype, device=self.device),
+            "ref_index": self.sample_ref_index(n),
+        }
+
+    # ----------------------------------------------------------------------------------- observations
+    def _obs_shapes(self) -> dict:
+        shapes = super()._obs_shapes()
+        parts = self.sim.tree.num_parts
+        shapes.update({("object", "q"): (parts,), ("object", "qd"): (parts,), ("object", "base_pose"): (7,)})
+        return shapes
+
+    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips) -> dict:
+        obs = super()._observe(q, qd, params, goal, wrench, contact_force, body_pose, tips)
+        nu, free = self.sim.nu, self.sim.tree.free
+        obs[("object", "q")] = q[:, nu + 7 * free:]
+        obs[("object", "qd")] = qd[:, nu + 6 * free:]
+        obs[("object", "base_pose")] = body_pose[:, nu]
+        obs[("object", "pose")] = body_pose[:, nu + 1 + self.joint_index]
+        obs["achieved_goal"] = self.achieved_goal(obs)
+        return obs
+
+    def achieved_goal(self, obs: dict) -> torch.Tensor:
+        q = obs[("object", "q")]
+        if q.shape[-1] != self.sim.tree.num_parts:  # DexEnv's own layout, replaced in _observe
+            return q[:, -1:]
+        return q[:, self.joint_index: self.joint_index + 1]
+
+    # ----------------------------------------------------------------------------------- reference
+    def joint_reference(self, td, steps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(position, torque)`` of the operated joint's reference at env steps ``steps`` [N, H], each [N, H, 1]."""
+        goal = td[("task", "goal")]
+        frac = (steps.to(self.dtype) / self.config.ramp_steps).clamp(max=1.0).unsqueeze(-1)
+        angle = self.joint_rest + (goal.unsqueeze(1) - self.joint_rest) * frac
+        speed = (goal.unsqueeze(1) - self.joint_rest) / (self.config.ramp_steps * self.sim.dt)
+        moving = ((steps >= 1) & (steps <= self.config.ramp_steps)).unsqueeze(-1)
+        damping, friction, stiffness, rest = self._nominal
+        torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / FRICTION_VELOCITY), 0.0)
+        return angle, torque + stiffness * (angle - rest)
+
+    def reference(self, td, steps: torch.Tensor) -> TensorDict:
+        angle, torque = self.joint_reference(td, steps)
+        pose = self._base0.expand(*angle.shape[:2], 7)
+        wrench = torch.zeros(*angle.shape[:2], 6, dtype=self.dtype, device=self.device)
+        return TensorDict({"pose": pose, "joint_q": angle, "wrench": wrench, "joint_torque": torque},
+                          batch_size=steps.shape)
+
+    def goal_window_widths(self) -> tuple[int, int]:
+        return 1, 1  # the operated joint's position and torque
+
+    def goal_window(self, td, steps: torch.Tensor, with_wrench: bool) -> torch.Tensor:
+        angle, torque = self.joint_reference(td, steps)
+        return torch.cat([angle, torque], -1) if with_wrench else angle
+
+    # ----------------------------------------------------------------------------------- reward, success
+    def base_motion(self, obs: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(shift [N, 1] m, tilt [N, 1] rad)`` of the base from where it stood (zeros for a fixed base)."""
+        pose = obs[("object", "base_pose")]
+        if not self.sim.tree.free:
+            zero = torch.zeros_like(pose[:, :1])
+            return zero, zero
+        shift = (pose[:, :3] - self._base0[:3]).norm(dim=-1, keepdim=True)
+        dot = (pose[:, 3:] * self._base0[3:]).sum(-1, keepdim=True).abs().clamp(max=1.0)
+        return shift, 2 * torch.acos(dot)
+
+    def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        ref_angle, _ = self.joint_reference(task, task[("task", "step")])
+        c = self.config
+        shift, tilt = self.base_motion(obs)
+        terms = {
+            "pose": angle_tracking_reward(self.achieved_goal(obs), ref_angle[:, 0], c.pose_scale * self.joint_span),
+            "action": action_penalty(action.to(self.dtype), self._act_weights),
+            "fingertip": fingertip_reward(obs[("fingertips", "pos")], obs[("object", "pose")][:, :3],
+                                          c.fingertip_scale),
+            "base": torch.exp(-shift / c.max_base_shift - tilt / c.max_base_tilt),
+        }
+        k = c.reward
+        total = (k.lambda_pose * terms["pose"] + k.lambda_act * terms["action"] + k.lambda_f * terms["fingertip"]
+                 + c.lambda_base * terms["base"])
+        return total, terms
+
+    def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
+        c = self.config
+        shift, tilt = self.base_motion(obs)
+        reached = (self.achieved_goal(obs) - goal).abs() < c.success_band * self.joint_span
+        return reached & (shift < c.max_base_shift) & (tilt < c.max_base_tilt)
+
+
+register_task("operate", OperateObjectEnv, OperateObjectConfig)

@@ -1,0 +1,134 @@
+"""The scene of a hand and an articulated object: the hand's fields, the object tree and its collision geoms.
+
+:func:`~dexmots_rl.sim.load_scene` builds an :class:`ArticulatedScene` when body ``object`` of an MJCF is a tree
+(a base with moving parts, :mod:`.object_model`); :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`
+simulates it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SPHERE
+from .mjcf_shapes import _quat_to_mat
+from .object_model import ObjectTree
+
+__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
+
+
+@dataclasses.dataclass
+class ObjectGeoms:
+    """The object's collision geoms for finger contact, per body (``[B, G]``, G the most any body has):
+    kind (GEOM_*; GEOM_NONE pads), centre (m) and rotation in the body frame, sizes (m: box half sizes; sphere
+    radius; capsule and cylinder radius and half length). A mesh geom collides as its oriented bounding box."""
+
+    kind: np.ndarray
+    pos: np.ndarray
+    rot: np.ndarray
+    size: np.ndarray
+
+    def bound(self, margin: float = 1.0e-3) -> np.ndarray:
+        """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
+        (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
+        radius = np.linalg.norm(self.size, axis=-1)  # box: half diagonal; cylinder: (r, half length)
+        radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
+        radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
+        reach = np.linalg.norm(self.pos, axis=-1) + radius
+        reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
+        return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)
+
+
+def object_geoms(m) -> ObjectGeoms:
+    """Read the collision geoms of body ``object`` and its descendants from a compiled model."""
+    import mujoco
+    import trimesh
+
+    root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+    bodies = [root] + [b for b in range(root + 1, m.nbody) if _descends(m, b, root)]
+    per_body = []
+    for b in bodies:
+        geoms = []
+        for g in range(m.ngeom):
+            if m.geom_bodyid[g] != b or not (m.geom_contype[g] or m.geom_conaffinity[g]):
+                continue
+            kind, size = int(m.geom_type[g]), np.asarray(m.geom_size[g], dtype=np.float64)
+            pos, rot = m.geom_pos[g].copy(), _quat_to_mat(m.geom_quat[g])
+            if kind == mujoco.mjtGeom.mjGEOM_BOX:
+                geoms.append((GEOM_BOX, pos, rot, size[:3]))
+            elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+                geoms.append((GEOM_SPHERE, pos, rot, np.array([size[0], 0.0, 0.0])))
+            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                geoms.append((GEOM_CAPSULE, pos, rot, np.array([size[0], size[1], 0.0])))
+            elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+                geoms.append((GEOM_CYLINDER, pos, rot, np.array([size[0], size[1], 0.0])))
+            elif kind == mujoco.mjtGeom.mjGEOM_MESH:
+                mid = m.geom_dataid[g]
+                verts = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
+                box = trimesh.PointCloud(verts).bounding_box_oriented
+                local = np.asarray(box.primitive.transform)
+                geoms.append((GEOM_BOX, pos + rot @ local[:3, 3], rot @ local[:3, :3],
+                              np.asarray(box.primitive.extents) / 2))
+        per_body.append(geoms)
+    # padded to at least 4 geoms per body: most objects then share one compiled contact kernel
+    width = max(4, max(len(g) for g in per_body))
+    kind = np.full((len(bodies), width), GEOM_NONE, dtype=np.int32)
+    pos, size = np.zeros((len(bodies), width, 3)), np.zeros((len(bodies), width, 3))
+    rot = np.tile(np.eye(3), (len(bodies), width, 1, 1))
+    for b, geoms in enumerate(per_body):
+        for g, (k, p, r, s) in enumerate(geoms):
+            kind[b, g], pos[b, g], rot[b, g], size[b, g] = k, p, r, s
+    return ObjectGeoms(kind, pos, rot, size)
+
+
+def _descends(m, b: int, root: int) -> bool:
+    while b > 0:
+        if b == root:
+            return True
+        b = int(m.body_parentid[b])
+    return False
+
+
+@dataclasses.dataclass
+class ArticulatedScene:
+    """A fixed-mount hand (``hand``: the hand fields of :class:`~dexmots_rl.sim.SceneModel`, by name) and an
+    articulated object (``tree``, ``geoms``); ``palm``: (centres [K, 3], rotations [K, 3, 3], half sizes [K, 3]),
+    world frame, of the palm's boxes that collide with the object (none: the palm is drawn only)."""
+
+    path: str
+    hand: dict
+    tree: ObjectTree
+    geoms: ObjectGeoms
+    palm: tuple
+
+    def __getattr__(self, name):  # the hand's fields read like SceneModel's (scene.num_fingers, ...)
+        hand = self.__dict__.get("hand")
+        if hand is not None and name in hand:
+            return hand[name]
+        raise AttributeError(name)
+
+    articulated = True
+
+    @property
+    def num_hand_dofs(self) -> int:
+        return self.hand["num_fingers"] * self.hand["joints_per_finger"]
+
+    @property
+    def object_nq(self) -> int:
+        return self.tree.nq
+
+    @property
+    def object_nv(self) -> int:
+        return self.tree.nv
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return self.tree.param_names
+
+    def default_param_values(self) -> dict[str, float]:
+        return self.tree.default_param_values()
+
+    @property
+    def object_q0(self) -> np.ndarray:
+        return self.tree.q0

@@ -1,0 +1,138 @@
+"""Warp kernel of the palm's contact with an articulated object's bodies.
+
+The hand is fixed-mount, so its palm is a few boxes fixed in the world (body ``hand``'s colliding box geoms).
+A thread per world and object body tests the body's surface samples (sim/object_model.py) against each box: a
+relaxed penalty along the box's outward normal with Hunt-Crossley damping and smoothed Coulomb friction, its
+stiffness, damping and friction handed to the object's solve as matrices at the body's com (linearly implicit,
+as the table's contact). Like the table, the palm only pushes the object; the hand feels nothing back (it is
+fixed).
+"""
+
+# no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
+
+import functools
+import types
+
+import warp as wp
+
+__all__ = ["build_palm_object_kernels"]
+
+
+@functools.lru_cache(maxsize=None)
+def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: int):
+    """The palm kernel for ``boxes`` palm boxes against ``num_bodies`` bodies of ``samples`` samples each."""
+    dtype = float_type
+    S, NB = int(samples), int(boxes)
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+
+    @wp.struct
+    class Model:
+        box_pos: wp.array(dtype=vec3)  # [NB] m, world: box centres
+        box_rot: wp.array(dtype=mat33)  # [NB] box -> world
+        box_half: wp.array(dtype=vec3)  # [NB] m: half sizes
+        sample_pos: wp.array2d(dtype=vec3)  # [B, S] m, body frame
+        sample_radius: wp.array2d(dtype=dtype)  # [B, S] m (< 0: padding)
+        ke: dtype  # N/m per sample
+        beta: dtype  # 1/m
+        kd: dtype  # s/m
+        mu: dtype
+        v_slip: dtype  # m/s
+
+    @wp.func
+    def softplus(x: dtype, beta: dtype):
+        bx = beta * x
+        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def box_distance(h: vec3, p: vec3):
+        """Signed distance (m) of p (box frame) to the box of half sizes h; its outward normal (box frame)."""
+        qx = wp.abs(p[0]) - h[0]
+        qy = wp.abs(p[1]) - h[1]
+        qz = wp.abs(p[2]) - h[2]
+        out = vec3(wp.max(qx, dtype(0.0)), wp.max(qy, dtype(0.0)), wp.max(qz, dtype(0.0)))
+        lo = wp.length(out)
+        d = lo
+        n = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
+        if lo > dtype(1.0e-9):
+            n = vec3(out[0] * wp.sign(p[0]), out[1] * wp.sign(p[1]), out[2] * wp.sign(p[2])) / lo
+        else:
+            d = wp.max(qx, wp.max(qy, qz))
+            if qx >= qy and qx >= qz:
+                n = vec3(wp.sign(p[0]), dtype(0.0), dtype(0.0))
+            elif qy >= qz:
+                n = vec3(dtype(0.0), wp.sign(p[1]), dtype(0.0))
+            else:
+                n = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
+        return d, n
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def palm_contact(
+        m: Model,
+        body_x: wp.array2d(dtype=vec3),  # [N, B] object frames (object_kernels.frames)
+        body_R: wp.array2d(dtype=mat33),
+        body_c: wp.array2d(dtype=vec3),
+        body_v: wp.array2d(dtype=vec3),
+        body_w: wp.array2d(dtype=vec3),
+        dt: dtype,
+        contact_f: wp.array2d(dtype=vec3),  # [N, B] in: the table's contact (table_contact)
+        contact_t: wp.array2d(dtype=vec3),
+        contact_Kvv: wp.array2d(dtype=mat33),
+        contact_Kvw: wp.array2d(dtype=mat33),
+        contact_Kww: wp.array2d(dtype=mat33),
+        out_f: wp.array2d(dtype=vec3),  # [N, B] out: table + palm
+        out_t: wp.array2d(dtype=vec3),
+        out_Kvv: wp.array2d(dtype=mat33),
+        out_Kvw: wp.array2d(dtype=mat33),
+        out_Kww: wp.array2d(dtype=mat33),
+    ):
+        w, b = wp.tid()
+        x = body_x[w, b]
+        R = body_R[w, b]
+        c = body_c[w, b]
+        vc = body_v[w, b]
+        om = body_w[w, b]
+        f_sum = vec3()
+        t_sum = vec3()
+        Kvv = mat33()
+        Kvw = mat33()
+        Kww = mat33()
+        eye = wp.identity(n=3, dtype=dtype)
+        for s in range(S):
+            rad = m.sample_radius[b, s]
+            if rad >= dtype(0.0):
+                ps = x + R * m.sample_pos[b, s]
+                for k in range(NB):
+                    Rb = m.box_rot[k]
+                    d, nl = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))
+                    pen = rad - d
+                    if pen > dtype(-12.0) / m.beta:
+                        n = Rb * nl  # world, out of the palm: the push on the object
+                        r = ps - n * rad - c
+                        vp = vc + wp.cross(om, r)
+                        vn = wp.dot(vp, n)
+                        fe = m.ke * softplus(pen, m.beta)
+                        damp = dtype(1.0) - m.kd * vn
+                        kn = m.ke / (dtype(1.0) + wp.exp(-m.beta * pen)) * wp.max(damp, dtype(0.0))
+                        fn = fe * wp.max(damp, dtype(0.0)) - dt * kn * vn
+                        vt = vp - vn * n
+                        cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+                        f = fn * n - cf * vt
+                        f_sum = f_sum + f
+                        t_sum = t_sum + wp.cross(r, f)
+                        gn = dt * dt * kn
+                        if damp > dtype(0.0):
+                            gn = gn + dt * fe * m.kd
+                        nn = wp.outer(n, n)
+                        Pc = dt * cf * (eye - nn) + gn * nn
+                        Sr = wp.skew(r)
+                        Kvv = Kvv + Pc
+                        Kvw = Kvw - Pc * Sr
+                        Kww = Kww + wp.transpose(Sr) * Pc * Sr
+        out_f[w, b] = contact_f[w, b] + f_sum
+        out_t[w, b] = contact_t[w, b] + t_sum
+        out_Kvv[w, b] = contact_Kvv[w, b] + Kvv
+        out_Kvw[w, b] = contact_Kvw[w, b] + Kvw
+        out_Kww[w, b] = contact_Kww[w, b] + Kww
+
+    return types.SimpleNamespace(Model=Model, palm_contact=palm_contact, vec3=vec3, mat33=mat33)
