@@ -21,7 +21,7 @@ import sys
 __all__ = ["SHIPPED_TASKS", "gym_id", "register_gym_ids", "register_when_gymnasium_loads"]
 
 #: the registry names of the tasks under dexmots_rl/envs/tasks (a test checks it against the registry)
-SHIPPED_TASKS = ("allegro_rotate", "repose_cube", "scissors", "screw_claw", "spray_bottle", "stapler")
+SHIPPED_TASKS = ("allegro_rotate", "operate", "repose_cube", "scissors", "screw_claw", "spray_bottle", "stapler")
 
 
 def gym_id(task: str) -> str:
