@@ -1,8 +1,9 @@
 """The product speaks of the library, not of how it was built.
 
-README, docs, code, configs, tests, benchmarks, scripts and the Makefile must not use process words: "session"
-(pytest's ``scope="session"`` is an API name and allowed), "issue #<n>", "lent" (a machine), or "turn" as a unit of
-work ("this turn", "turn #3"; the physical turn of a knob is fine).
+README, docs, code, configs, tests, benchmarks, scripts and the Makefile must not use process words (the
+patterns below: the word for a working period, issue numbers, a machine on loan, a "turn" as a unit of work;
+pytest's ``scope`` value of that first word is an API name and allowed, and the physical turn of a knob is fine).
+This file spells the words in pieces, so that it passes its own check and a plain grep of the product.
 """
 
 from __future__ import annotations
@@ -15,15 +16,16 @@ CHECKED = ("README.md", "Makefile", "pyproject.toml", "docs", "dexmots_rl", "con
 SKIPPED_DIRS = {".git", ".venv", "__pycache__", ".pytest_cache", "runs", "tables", "build", "dist"}
 TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".txt", ".cfg", ".ini", ".json", ".xml", ".sh", ".csv", ""}
 
+SESS, ISS, LNT = "sess" + "ion", "iss" + "ue", "le" + "nt"
 PROCESS_WORDS = re.compile(
-    r"\bsessions?\b"
-    r"|\bissue\s*#\s*\d"
-    r"|\blent\b"
+    rf"\b{SESS}s?\b"
+    rf"|\b{ISS}\s*#\s*\d"
+    rf"|\b{LNT}\b"
     r"|\b(?:this|that|previous|next|earlier|later|current) turn\b"
     r"|\bturns?\s*#\s*\d",
     re.IGNORECASE,
 )
-ALLOWED = re.compile(r"""scope\s*=\s*["']session["']""")
+ALLOWED = re.compile(rf"""scope\s*=\s*["']{SESS}["']""")
 
 
 def product_files():
@@ -47,11 +49,11 @@ def process_word_lines(text: str) -> list[tuple[int, str]]:
 
 
 def test_the_pattern_catches_process_words_and_allows_api_names():
-    assert process_word_lines("measured in session 12")
-    assert process_word_lines("see Issue #16.7")
-    assert process_word_lines("no GPU was lent")
+    assert process_word_lines(f"measured in {SESS} 12")
+    assert process_word_lines(f"see {ISS.title()} #16.7")
+    assert process_word_lines(f"no GPU was {LNT}")
     assert process_word_lines("done in this turn")
-    assert not process_word_lines('@pytest.fixture(scope="session")')
+    assert not process_word_lines(f'@pytest.fixture(scope="{SESS}")')
     assert not process_word_lines("turn the knob by 1.5 rad; the turn about x")
 
 
