@@ -22,12 +22,12 @@ import types
 
 import warp as wp
 
+from .kernel_funcs import build_funcs
+
 __all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER"]
 
 GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER = -1, 0, 1, 2, 3
 LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
-LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32: precomputed
-LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
 FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
 CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
 
@@ -77,30 +77,15 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         mu: dtype  # friction coefficient
         v_slip: dtype  # m/s
 
-    @wp.func
-    def softplus(x: dtype, beta: dtype):
-        bx = beta * x
-        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
-
-    @wp.func
-    def axis_angle(a: vec3, t: dtype):
-        c = wp.cos(t)
-        s = wp.sin(t)
-        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
+    funcs = build_funcs(dtype)
+    softplus, axis_angle, limit_ramp, box_distance = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
+        funcs.box_distance
 
     @wp.func
     def unit_j(k: int):
         e = vecJ()
         e[k] = dtype(1.0)
         return e
-
-    @wp.func
-    def limit_ramp(x: dtype):
-        if x <= dtype(0.0):
-            return dtype(0.0)
-        if x < dtype(LIMIT_WIDTH):
-            return x * x * dtype(LIMIT_CURVE)
-        return x - dtype(LIMIT_OFFSET)
 
     if J == 1:  # warp's inverse starts at 2 x 2
 
@@ -140,22 +125,9 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             d = r - size[0]
             n = (p - s) / wp.max(r, dtype(1.0e-9))
         elif kind == GEOM_BOX:
-            qx = wp.abs(p[0]) - size[0]
-            qy = wp.abs(p[1]) - size[1]
-            qz = wp.abs(p[2]) - size[2]
-            out = vec3(wp.max(qx, dtype(0.0)), wp.max(qy, dtype(0.0)), wp.max(qz, dtype(0.0)))
-            lo = wp.length(out)
-            if lo > dtype(1.0e-9):
-                d = lo
-                n = vec3(out[0] * wp.sign(p[0]), out[1] * wp.sign(p[1]), out[2] * wp.sign(p[2])) / lo
-            else:  # inside: the nearest face
-                d = wp.max(qx, wp.max(qy, qz))
-                if qx >= qy and qx >= qz:
-                    n = vec3(wp.sign(p[0]), dtype(0.0), dtype(0.0))
-                elif qy >= qz:
-                    n = vec3(dtype(0.0), wp.sign(p[1]), dtype(0.0))
-                else:
-                    n = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
+            dn = box_distance(size, p)
+            d = dn[0]
+            n = vec3(dn[1], dn[2], dn[3])
         elif kind == GEOM_CYLINDER:
             rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1.0e-12))
             radial = vec3(p[0] / rho, p[1] / rho, dtype(0.0))
@@ -351,7 +323,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 gain = gain * (dtype(1.0) - sat * sat)
             e = unit_j(k)
             diag = diag + (m.armature[i] + dt * m.damping[i] + gain) * wp.outer(e, e)
-            lim = m.limit_ke[i] * (limit_ramp(m.lower[i] - qk) - limit_ramp(qk - m.upper[i]))
+            width = dtype(LIMIT_WIDTH)
+            lim = m.limit_ke[i] * (limit_ramp(m.lower[i] - qk, width) - limit_ramp(qk - m.upper[i], width))
             fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
             rhs = rhs + (tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[w, i]) * e
         rhs = rhs - bias

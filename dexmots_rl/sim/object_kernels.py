@@ -20,6 +20,8 @@ import types
 
 import warp as wp
 
+from .kernel_funcs import build_funcs
+
 __all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
 
 LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth, or 5 % of a shorter range
@@ -72,33 +74,9 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         mu: dtype  # Coulomb friction coefficient against the table
         v_slip: dtype  # m/s: slip velocity smoothing the friction
 
-    @wp.func
-    def softplus(x: dtype, beta: dtype):
-        bx = beta * x
-        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
-
-    @wp.func
-    def limit_ramp(x: dtype, width: dtype):
-        # C1 penalty ramp: zero inside the range, quadratic over ``width``, then linear
-        if x <= dtype(0.0):
-            return dtype(0.0)
-        if x < width:
-            return x * x / (dtype(2.0) * width)
-        return x - dtype(0.5) * width
-
-    @wp.func
-    def limit_slope(x: dtype, width: dtype):
-        if x <= dtype(0.0):
-            return dtype(0.0)
-        if x < width:
-            return x / width
-        return dtype(1.0)
-
-    @wp.func
-    def axis_angle(a: vec3, t: dtype):
-        c = wp.cos(t)
-        s = wp.sin(t)
-        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
+    funcs = build_funcs(dtype)
+    softplus, axis_angle, limit_ramp, limit_slope = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
+        funcs.limit_slope
 
     @wp.func
     def unit_p(k: int):

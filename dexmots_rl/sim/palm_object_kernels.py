@@ -15,6 +15,8 @@ import types
 
 import warp as wp
 
+from .kernel_funcs import build_funcs
+
 __all__ = ["build_palm_object_kernels"]
 
 
@@ -39,32 +41,8 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         mu: dtype
         v_slip: dtype  # m/s
 
-    @wp.func
-    def softplus(x: dtype, beta: dtype):
-        bx = beta * x
-        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
-
-    @wp.func
-    def box_distance(h: vec3, p: vec3):
-        """Signed distance (m) of p (box frame) to the box of half sizes h; its outward normal (box frame)."""
-        qx = wp.abs(p[0]) - h[0]
-        qy = wp.abs(p[1]) - h[1]
-        qz = wp.abs(p[2]) - h[2]
-        out = vec3(wp.max(qx, dtype(0.0)), wp.max(qy, dtype(0.0)), wp.max(qz, dtype(0.0)))
-        lo = wp.length(out)
-        d = lo
-        n = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
-        if lo > dtype(1.0e-9):
-            n = vec3(out[0] * wp.sign(p[0]), out[1] * wp.sign(p[1]), out[2] * wp.sign(p[2])) / lo
-        else:
-            d = wp.max(qx, wp.max(qy, qz))
-            if qx >= qy and qx >= qz:
-                n = vec3(wp.sign(p[0]), dtype(0.0), dtype(0.0))
-            elif qy >= qz:
-                n = vec3(dtype(0.0), wp.sign(p[1]), dtype(0.0))
-            else:
-                n = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
-        return d, n
+    funcs = build_funcs(dtype)
+    softplus, box_distance = funcs.softplus, funcs.box_distance
 
     @wp.kernel(module="unique", enable_backward=True)
     def palm_contact(
@@ -104,8 +82,9 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
                 ps = x + R * m.sample_pos[b, s]
                 for k in range(NB):
                     Rb = m.box_rot[k]
-                    d, nl = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))
-                    pen = rad - d
+                    dn = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))
+                    nl = vec3(dn[1], dn[2], dn[3])
+                    pen = rad - dn[0]
                     if pen > dtype(-12.0) / m.beta:
                         n = Rb * nl  # world, out of the palm: the push on the object
                         r = ps - n * rad - c
