@@ -14,7 +14,6 @@ replayed, their adjoints in reverse for the gradient (sim/articulated_stepper.py
 
 from __future__ import annotations
 
-import weakref
 
 import numpy as np
 import torch
@@ -28,7 +27,7 @@ from .palm_object_kernels import build_palm_object_kernels
 from .model import ContactParams
 from .object_sim import ObjectSimulator, TableContact
 
-__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStep", "ObjectGeoms", "object_geoms"]
+__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ObjectGeoms", "object_geoms"]
 
 LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
 
@@ -48,7 +47,7 @@ class ArticulatedSimulator(ObjectSimulator):
                          table=table, gravity=scene.gravity)
         self.scene = scene
         self.contact = contact or ContactParams()
-        # Simulator's outlier-world gradient clip (a training option), applied in ArticulatedStep.backward
+        # Simulator's outlier-world gradient clip (a training option), applied in SimStep.backward
         self.adjoint_clip = adjoint_clip
         self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)
         if (np.asarray(scene.joint_type) != 0).any():
@@ -133,14 +132,14 @@ class ArticulatedSimulator(ObjectSimulator):
     def step(self, joint_q, joint_qd, control, params):
         """One env step; returns a :class:`~dexmots_rl.sim.StepOutput` (the hand's contact wrench on the object
         is summed over its bodies, torque about the base origin)."""
-        from .simulator import StepOutput
+        from .simulator import SimStep, StepOutput
 
         n = joint_q.shape[0]
         if n != self.num_worlds:
             raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
         ext = control.object_wrench
         ext = self._zeros(n, 6) if ext is None else ext
-        return StepOutput(ArticulatedStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp,
+        return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp,
                                                 control.kd, self.pack_params(params), ext))
 
     def observe(self, joint_q, joint_qd=None):
@@ -183,38 +182,3 @@ class ArticulatedSimulator(ObjectSimulator):
         if traj.lease == lease:  # not returned already for this lease (backward, then the graph's release)
             traj.lease += 1
             self._pool.append(traj)
-
-
-class ArticulatedStep(torch.autograd.Function):
-    """One env step of an :class:`ArticulatedSimulator`. Inputs ``sim, joint_q, joint_qd, tau, q_target, kp, kd,
-    params, object_wrench``; outputs as :class:`~dexmots_rl.sim.StepOutput`. When an input needs a gradient, the
-    step runs on a pooled trajectory that keeps every substep for the reverse pass, and goes back to the pool
-    after backward (or when the graph is dropped without one)."""
-
-    @staticmethod
-    def forward(ctx, sim: ArticulatedSimulator, *inputs):
-        inputs = [t.detach() if t.dtype == sim.dtype else t.detach().to(sim.dtype) for t in inputs]
-        ctx.sim = sim
-        if not any(ctx.needs_input_grad[1:]):
-            ctx.traj = None
-            return tuple(sim._replay(inputs))
-        traj, ctx.lease = sim._take_trajectory()
-        weakref.finalize(ctx, sim._return_trajectory, traj, ctx.lease)
-        traj.load(inputs[0], inputs[1], inputs[2:])
-        traj.forward()
-        ctx.traj = traj
-        return tuple(traj.outputs())
-
-    @staticmethod
-    def backward(ctx, *grad_outputs):
-        if ctx.traj is None:
-            raise RuntimeError("ArticulatedStep supports one backward pass per forward: step again to "
-                               "differentiate again")
-        grads = ctx.traj.backward(grad_outputs)
-        ctx.sim._return_trajectory(ctx.traj, ctx.lease)
-        ctx.traj = None
-        if ctx.sim.adjoint_clip is not None:
-            from .simulator import _clip_outlier_worlds
-
-            grads = _clip_outlier_worlds(ctx.sim, grads)
-        return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])

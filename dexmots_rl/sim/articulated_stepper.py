@@ -162,9 +162,10 @@ class ArticulatedTrajectory:
                 self.wrench[last:].clone(), self.normal[last:].clone(),
                 self.pose.clone().view(-1, sim.num_bodies, 7), self.tips.clone().view(-1, sim.scene.num_fingers, 3)]
 
-    def backward(self, grad_outputs) -> list[torch.Tensor]:
+    def backward(self, grad_outputs, needed=None) -> list[torch.Tensor]:
         """Adjoints of (q, qd, wrench, contact force, pose, tips) -> adjoints of (joint_q, joint_qd, tau,
-        q_target, kp, kd, packed params, object wrench)."""
+        q_target, kp, kd, packed params, object wrench). ``needed`` (which inputs need a gradient; the knob
+        stepper's protocol, see :class:`~dexmots_rl.sim.SimStep`) is not used: every adjoint comes at once."""
         if not self.save:
             raise RuntimeError("this trajectory was run without its adjoint buffers")
         n, nu, last = self.n, self.sim.nu, self.steps * self.n

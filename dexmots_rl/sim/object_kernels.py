@@ -79,6 +79,21 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         funcs.limit_slope
 
     @wp.func
+    def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
+        """The base's origin, rotation, origin velocity and angular velocity (world) in world w: read from the
+        state for a free base, the model's placement (at rest) for a fixed one."""
+        x0 = m.off_pos[0]
+        R0 = m.off_rot[0]
+        v0 = vec3()
+        w0 = vec3()
+        if wp.static(FREE):
+            x0 = vec3(q[w, 0], q[w, 1], q[w, 2])
+            R0 = wp.quat_to_matrix(quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3]))
+            v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
+            w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
+        return x0, R0, v0, w0
+
+    @wp.func
     def unit_p(k: int):
         e = vecP()
         e[k] = dtype(1.0)
@@ -130,15 +145,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             qj = qj + q[w, qo + k] * unit_p(k)
             qdj = qdj + qd[w, vo + k] * unit_p(k)
         # the base
-        x0 = m.off_pos[0]
-        R0 = m.off_rot[0]
-        v0 = vec3()
-        w0 = vec3()
-        if wp.static(FREE):
-            x0 = vec3(q[w, 0], q[w, 1], q[w, 2])
-            R0 = wp.quat_to_matrix(quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3]))
-            v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
-            w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
+        x0, R0, v0, w0 = base_state(m, q, qd, w)
         # block sums of the mass matrix [T R P] and of the right-hand side
         M11 = mat33()
         M12 = mat33()
@@ -303,15 +310,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         w = wp.tid()
         qo = 7 * int(FREE)
         vo = 6 * int(FREE)
-        x0 = m.off_pos[0]
-        R0 = m.off_rot[0]
-        v0 = vec3()
-        w0 = vec3()
-        if wp.static(FREE):
-            x0 = vec3(q[w, 0], q[w, 1], q[w, 2])
-            R0 = wp.quat_to_matrix(quat(q[w, 4], q[w, 5], q[w, 6], q[w, 3]))
-            v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
-            w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
+        x0, R0, v0, w0 = base_state(m, q, qd, w)
         body_x[w, 0] = x0
         body_R[w, 0] = R0
         body_c[w, 0] = x0 + R0 * m.com[0]

@@ -354,7 +354,8 @@ def _clip_outlier_worlds(sim: Simulator, grads: list[torch.Tensor | None]) -> li
 
 
 class SimStep(torch.autograd.Function):
-    """One env step as an autograd Function: when an input needs a gradient, forward runs on a pooled
+    """One env step as an autograd Function (for :class:`Simulator` and, through the same trajectory protocol,
+    :class:`~dexmots_rl.sim.ArticulatedSimulator`): when an input needs a gradient, forward runs on a pooled
     trajectory that keeps the step's substeps and the intermediates the reverse pass replays, and
     backward runs the kernels' adjoints over it in reverse, then returns it to the pool (no tape, no
     trajectory and no gradient buffers otherwise). Inputs: ``sim, joint_q, joint_qd, tau,
