@@ -33,6 +33,7 @@ from typing import ClassVar, Optional
 import torch
 from tensordict import TensorDict
 
+from ....quaternions import quat_angle
 from ...base import DexEnv
 from ...registry import register_task
 from .operate import HAND_CONTACT
@@ -224,8 +225,7 @@ class OperateObjectEnv(DexEnv):
             zero = torch.zeros_like(pose[:, :1])
             return zero, zero
         shift = (pose[:, :3] - self._base0[:3]).norm(dim=-1, keepdim=True)
-        dot = (pose[:, 3:] * self._base0[3:]).sum(-1, keepdim=True).abs().clamp(max=1.0)
-        return shift, 2 * torch.acos(dot)
+        return shift, quat_angle(self._base0[3:].expand_as(pose[:, 3:]), pose[:, 3:])  # finite gradient at 0
 
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
         ref_angle, _ = self.joint_reference(task, task[("task", "step")])
