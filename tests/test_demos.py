@@ -6,6 +6,7 @@ import torch
 
 from dexmots_rl.envs import make_env
 from dexmots_rl.envs.demos import part_torque, read_demo, resample
+from dexmots_rl.envs.tasks.allegro.tools import TOOL_TASKS
 from dexmots_rl.trajectories import TrajectoryFormatError
 
 
@@ -71,3 +72,13 @@ def test_demo_and_references_are_exclusive(tmp_path):
         make_env("screw_claw", num_envs=2, demo=str(path), references=str(path))
     with pytest.raises(ValueError, match="does not follow pose-only demonstrations"):
         make_env("repose_cube", num_envs=2, demo=str(path))
+
+
+@pytest.mark.parametrize("task", sorted(TOOL_TASKS))
+def test_every_tool_task_ships_a_demonstration(task):
+    """``task.demo=shipped`` loads the package's scripted demonstration: the joint from rest to the task's goal."""
+    env = make_env(task, num_envs=2, demo="shipped", seed=0, raw=True, differentiable=False)
+    bank = env.reference_bank
+    assert bank.batch_size[1] == env.max_episode_steps + 1
+    assert abs(float(bank["joint_q"][0, 0, 0]) - env.joint_rest) < 1e-6
+    assert abs(float(bank["joint_q"][0, -1, 0]) - env.goal_value) < 1e-5

@@ -30,7 +30,7 @@ from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
 from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
-from .demos import read_demo
+from .demos import demo_path, read_demo
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
@@ -116,7 +116,7 @@ class DexEnv(EnvBase):
         self._bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
         # a demonstration is read (and checked) now, and turned into the task's reference once the task's own
         # fields exist (the first use of reference_bank; make_env makes that use before returning)
-        self._demo = None if config.demo is None else read_demo(config.demo)
+        self._demo = None if config.demo is None else read_demo(demo_path(config.name, config.demo))
         self.actions = ActionMap(self.sim, config.action, center=self.action_center)
         self.action_type = config.action
         self._make_specs()

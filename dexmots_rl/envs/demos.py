@@ -1,8 +1,8 @@
 """Pose-only demonstrations: an object trajectory the policy is conditioned on and rewarded for following.
 
 A demonstration says how the object moved, not how hard it was pushed (the paper's Exp. 3: follow a
-pose-only demonstration). ``make_env(task, demo="<file>")`` (or ``task.demo=<file>`` for ``dexmots-train``)
-reads one, derives the generalised forces that motion needs, and uses it where the task's own reference
+pose-only demonstration). ``make_env(task, demo="<file>")`` (or ``task.demo=<file>`` for ``dexmots-train``;
+``demo="shipped"``: the one the package ships for each tool task, ``scripts/make_demos.py``) reads one, derives the generalised forces that motion needs, and uses it where the task's own reference
 would be: the goal window the policy sees, the pose and wrench reward terms, and the goal (the
 demonstration's last row).
 
@@ -42,9 +42,10 @@ import torch
 from ..quaternions import slerp
 from ..trajectories import PoseWrenchTrajectory, TrajectoryFormatError, wrenches_from_poses
 
-__all__ = ["FRICTION_VELOCITY", "demo_trajectory", "part_torque", "read_demo", "resample"]
+__all__ = ["FRICTION_VELOCITY", "SHIPPED", "demo_path", "demo_trajectory", "part_torque", "read_demo", "resample"]
 
 FRICTION_VELOCITY = 0.05  # rad/s (or m/s): the simulator's smoothing of joint Coulomb friction
+SHIPPED = "shipped"  # task.demo=shipped: the demonstration the package ships for the task
 MAX_ROWS = 100_000  # a demonstration longer than this (~28 min at 60 Hz) is not an episode's motion
 
 
@@ -54,6 +55,21 @@ def part_torque(speed: torch.Tensor, angle: torch.Tensor, nominal) -> torch.Tens
     friction, stiffness, rest)`` (the analytic references' law: inertia neglected, quasi-static)."""
     damping, friction, stiffness, rest = nominal
     return damping * speed + friction * torch.tanh(speed / FRICTION_VELOCITY) + stiffness * (angle - rest)
+
+
+def demo_path(task: str, demo):
+    """Where ``task.demo`` points: ``"shipped"`` is the package's demonstration of ``task``
+    (``assets/demos/<task>.npz``, made by ``scripts/make_demos.py``), anything else is returned as given."""
+    if demo != SHIPPED:
+        return demo
+    from ..assets import ASSET_DIR
+
+    path = ASSET_DIR / "demos" / f"{task}.npz"
+    if not path.is_file():
+        shipped = sorted(p.stem for p in (ASSET_DIR / "demos").glob("*.npz"))
+        raise TrajectoryFormatError(f"task.demo=shipped: task {task!r} ships no demonstration (tasks that do: "
+                                    f"{', '.join(shipped)}); give a file")
+    return path
 
 
 def _load(source) -> tuple[dict, str]:
