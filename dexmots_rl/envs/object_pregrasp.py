@@ -12,7 +12,7 @@ error saying how to describe them. :func:`find_object_pregrasps` then, per candi
 2. settles the hand in our simulator (:class:`~dexmots_rl.sim.ArticulatedSimulator`) with a stiff PD hold of
    the IK pose while the whole object is held where it stands (its coordinates reset after every step), so
    contact pushes penetrating links out;
-3. releases the object for ``release_steps`` steps, the hand still holding its pose, and keeps the candidate
+3. releases the object for ``release_steps`` steps, the hand still holding its pose, and keeps a candidate
    only if the base moved less than ``max_base_shift`` and the operated joint stayed within
    ``max_joint_shift`` (a fraction of its range) of rest: the grasp neither pushes the tool away nor operates it;
 4. and only if MuJoCo's geometry (:func:`check_object_pregrasp`) finds every named fingertip within
@@ -79,7 +79,8 @@ def fallback_regions(asset, model, data, joint: str | None = None):
     joint = joint or asset.operated_joint or (asset.joints[0].name if asset.joints else None)
     part = next((p.name for p in asset.parts[1:] if p.joint.name == joint), None)
     if part is None:
-        raise PregraspError(f"object {asset.name!r} has no grasp regions and no moving part to hold; {REGIONS_HELP}")
+        raise PregraspError(f"object {asset.name!r} has no grasp regions and no moving part to hold; "
+                            + REGIONS_HELP)
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, _body_name(asset, part))
     corners = []
     for g in range(model.ngeom):
