@@ -14,7 +14,8 @@ error saying how to describe them. :func:`find_object_pregrasps` then, per candi
    contact pushes penetrating links out;
 3. releases the object for ``release_steps`` steps, the hand still holding its pose, and keeps a candidate
    only if the base moved less than ``max_base_shift`` and the operated joint stayed within
-   ``max_joint_shift`` (a fraction of its range) of rest: the grasp neither pushes the tool away nor operates it;
+   ``max_joint_shift`` (a fraction of its range) of rest, beyond what the object does alone on the table
+   (:func:`object_drift`): the grasp neither pushes the tool away nor operates it;
 4. and only if MuJoCo's geometry (:func:`check_object_pregrasp`) finds every named fingertip within
    ``touch_tolerance`` of its part and no hand geom deeper than ``max_penetration`` in any object geom.
 
@@ -32,7 +33,7 @@ import numpy as np
 from .pregrasp import PregraspError, _finger_sites, _solve_ik
 
 __all__ = ["object_regions", "fallback_regions", "find_object_pregrasps", "check_object_pregrasp",
-           "release_drift", "operate_pregrasp_path", "OPERATE_HINT", "FREE_POSE"]
+           "release_drift", "object_drift", "operate_pregrasp_path", "OPERATE_HINT", "FREE_POSE"]
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,7 @@ log = logging.getLogger(__name__)
 # region stays at FREE_POSE (slightly curled, the thumb out to the side at the palm's height: clear of the object)
 OPERATE_HINT = (0.0, 0.6, 0.6, 0.6) * 3 + (1.2, 0.6, 0.4, 0.4)
 FREE_POSE = (0.0, 0.3, 0.3, 0.3) * 3 + (0.3, 0.3, 0.3, 0.3)
+TUCKED_POSE = (0.0, 1.5, 1.5, 1.0) * 3 + (0.3, 0.3, 0.3, 0.3)  # the free fingers' second choice: curled in
 REGIONS_HELP = ("describe where each fingertip rests with ObjectAsset.grasp_regions (GraspRegion: finger, part, "
                 "point and outward normal in the part's frame, spread), or start the task with initial=open")
 
@@ -96,7 +98,7 @@ def fallback_regions(asset, model, data, joint: str | None = None):
 
     def region(finger, x, y, normal):
         point = rot.T @ (np.array([x, y, mid[2]]) - origin)
-        return GraspRegion(finger, part, tuple(point), tuple(rot.T @ np.asarray(normal, float)), (0.0, 0.0, 0.0))
+        return GraspRegion(finger, part, tuple(point), tuple(rot.T @ np.asarray(normal, float)), (0.002,) * 3)
 
     width = min(0.012, (high[1] - low[1]) / 4)
     return (region("index", high[0], mid[1] + width, (1, 0, 0)), region("middle", high[0], mid[1] - width, (1, 0, 0)),
@@ -178,8 +180,43 @@ def release_drift(sim, q_hand, steps: int, joint_index: int, params=None) -> tup
     return shift.numpy(), moved.numpy()
 
 
+def _clearance(model, data, q, finger: str, bodies: set[int]) -> float:
+    """The least distance (m) between finger ``finger``'s geoms and the object's at hand pose ``q``."""
+    import mujoco
+
+    data.qpos[:] = q
+    mujoco.mj_forward(model, data)
+    own = [g for g in range(model.ngeom) if model.geom_contype[g] and (mujoco.mj_id2name(
+        model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[g])) or "").split("_")[0] == finger]
+    others = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies and model.geom_contype[g]]
+    fromto = np.zeros(6)
+    return min(float(mujoco.mj_geomDistance(model, data, a, b, 0.05, fromto)) for a in own for b in others)
+
+
+def object_drift(sim, steps: int, joint_index: int) -> tuple[float, float]:
+    """:func:`release_drift` of the object alone on its table (no hand): what it does by itself, e.g. an
+    unsprung lid that falls shut; a grasp is judged by what it adds to that."""
+    import torch
+
+    from ..sim import ObjectSimulator
+
+    alone = ObjectSimulator(sim.tree, 1, dtype=sim.dtype, substeps=sim.substeps, sub_dt=sim.sub_dt,
+                            table=sim.table, gravity=sim.scene.gravity)
+    q, qd = alone.initial_state()
+    start, params = q.clone(), alone.default_params()
+    j = 7 * sim.tree.free + joint_index
+    shift = moved = 0.0
+    with torch.no_grad():
+        for _ in range(steps):
+            q, qd = alone.step(q, qd, params)
+            if sim.tree.free:
+                shift = max(shift, float((q[0, :3] - start[0, :3]).norm()))
+            moved = max(moved, float((q[0, j] - start[0, j]).abs()))
+    return shift, moved
+
+
 def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FREE_POSE, candidates: int = 8, seed: int = 0,
-                          squeeze: float = 0.003, settle_steps: int = 30, release_steps: int = 15, keep: int = 4,
+                          squeeze: float = 0.003, settle_steps: int = 30, release_steps: int = 20, keep: int = 4,
                           contact=None, joint: str | None = None, max_base_shift: float = 0.001,
                           max_joint_shift: float = 0.05) -> np.ndarray:
     """Up to ``keep`` verified pre-grasps [K, nu] of ``asset`` in ``scene`` (an
@@ -194,6 +231,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     data = mujoco.MjData(model)
     nu = scene.num_hand_dofs
     sites = _finger_sites(model, scene)
+    bodies = _object_bodies(model)
     rng = np.random.default_rng(seed)
     mujoco.mj_forward(model, data)
     poses = np.zeros((candidates, nu))
@@ -215,6 +253,10 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
             depth = squeeze if r.squeeze is None else r.squeeze
             _solve_ik(model, data, q, sites[f][0], sites[f][1], data.xpos[body] + rot @ local
                       + normal / np.linalg.norm(normal) * (radius - depth))
+        named = {r.finger for r in regions}
+        for f, finger in enumerate(scene.finger_names):  # a free finger in the object curls in instead
+            if finger not in named and _clearance(model, data, q, finger, bodies) < 0.002:
+                q[sites[f][1]] = np.asarray(TUCKED_POSE)[sites[f][1]]
         poses[c] = q[:nu]
 
     # settle: a stiff hold of each IK pose with the object held where it stands; contact pushes links out
@@ -235,6 +277,8 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     index = sim.tree.joint_names.index(joint)
     lo, hi = sim.tree.joint_range[index]
     shift, moved = release_drift(sim, settled, release_steps, index)
+    alone_shift, alone_moved = object_drift(sim, release_steps, index)
+    shift, moved = shift - alone_shift, moved - alone_moved
     kept = []
     for c in range(candidates):
         ok, details = check_object_pregrasp(model, data, scene, asset, settled[c], regions)

@@ -115,7 +115,7 @@ def spray_bottle(params: SprayBottleParams | None = None, rng=None, name: str = 
 
     regions = (on_back("index", 0.6), on_back("ring", -0.6),
                grasp_region("thumb", "trigger", (0.009, 0.0, -0.55 * length), (1, 0, 0), (0.0, 0.003, 0.004),
-                            squeeze=0.0))  # touching: a press would pull the trigger
+                            squeeze=-0.0015))  # touching: a press would pull the trigger
     return ObjectAsset(
         name=name, object_class="spray_bottle", base="free", operated_joint="trigger",
         parts=(Part("bottle", base_geoms, visual="bottle"),
