@@ -8,7 +8,6 @@ import dataclasses
 import json
 
 import mujoco
-import numpy as np
 import pytest
 import torch
 

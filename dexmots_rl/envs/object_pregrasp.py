@@ -7,8 +7,9 @@ middle on the front (+x) face of the operated part's bounding box and the thumb 
 error saying how to describe them. :func:`find_object_pregrasps` then, per candidate:
 
 1. draws a contact point in every region (seeded), puts the fingertip sphere's centre one radius out along
-   the normal, ``squeeze`` metres deeper (or the region's own squeeze), and solves each finger's inverse kinematics to it
-   (:mod:`.pregrasp`'s damped least squares on MuJoCo's Jacobian), the other fingers at ``hint``;
+   the normal, ``squeeze`` metres deeper (or the region's own squeeze), and solves each finger's inverse
+   kinematics to it (:mod:`.pregrasp`'s damped least squares on MuJoCo's Jacobian); the other fingers stay
+   slightly curled, or curled in where they would touch the object;
 2. settles the hand in our simulator (:class:`~dexmots_rl.sim.ArticulatedSimulator`) with a stiff PD hold of
    the IK pose while the whole object is held where it stands (its coordinates reset after every step), so
    contact pushes penetrating links out;
@@ -16,8 +17,9 @@ error saying how to describe them. :func:`find_object_pregrasps` then, per candi
    only if the base moved less than ``max_base_shift`` and the operated joint stayed within
    ``max_joint_shift`` (a fraction of its range) of rest, beyond what the object does alone on the table
    (:func:`object_drift`): the grasp neither pushes the tool away nor operates it;
-4. and only if MuJoCo's geometry (:func:`check_object_pregrasp`) finds every named fingertip within
-   ``touch_tolerance`` of its part and no hand geom deeper than ``max_penetration`` in any object geom.
+4. and only if MuJoCo's geometry (:func:`check_object_pregrasp`, an independent check) finds every named
+   fingertip within 5 mm of its part and no hand geom more than 3 mm inside any object geom (the smooth contact
+   settles a lightly pressing fingertip 2-4 mm outside the exact surface).
 
 The files: ``assets/pregrasps/operate/<object>.json`` ship for every library object (``dexmots-pregrasp
 --task operate --all``, the command ``docs/objects.md`` gives); their ``task`` is ``operate`` and their
@@ -215,9 +217,9 @@ def object_drift(sim, steps: int, joint_index: int) -> tuple[float, float]:
     return shift, moved
 
 
-def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FREE_POSE, candidates: int = 8, seed: int = 0,
-                          squeeze: float = 0.003, settle_steps: int = 30, release_steps: int = 20, keep: int = 4,
-                          contact=None, joint: str | None = None, max_base_shift: float = 0.001,
+def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FREE_POSE, candidates: int = 8,
+                          seed: int = 0, squeeze: float = 0.003, settle_steps: int = 30, release_steps: int = 20,
+                          keep: int = 4, contact=None, joint: str | None = None, max_base_shift: float = 0.001,
                           max_joint_shift: float = 0.05) -> np.ndarray:
     """Up to ``keep`` verified pre-grasps [K, nu] of ``asset`` in ``scene`` (an
     :class:`~dexmots_rl.sim.ArticulatedScene`); see the module docstring. IK starts a finger with a region
