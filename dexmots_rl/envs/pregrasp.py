@@ -22,6 +22,8 @@ ships one per task (``assets/pregrasps/<task>.json``); ``dexmots-pregrasp --task
 where the user says, deterministically for a seed, and a task uses it with ``task.pregrasps=<file>``. A file
 is read, and checked whole (:func:`load_pregrasps`), when its task's env is built.
 Tasks with ``initial="pregrasp"`` draw one of these per episode (:class:`~.tasks.allegro.operate.OperateEnv`).
+The articulated objects of task ``operate`` describe their own regions and are searched by
+:mod:`.object_pregrasp`, into the same file format (with the ``object`` it belongs to).
 """
 
 from __future__ import annotations
