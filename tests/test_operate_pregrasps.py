@@ -12,13 +12,15 @@ import pytest
 import torch
 
 from dexmots_rl.apps import pregrasp as pregrasp_app
+from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import GraspRegion, ObjectError, list_objects, load_object
+from dexmots_rl.assets.objects.generators import GENERATORS
 from dexmots_rl.envs import make_env
-from dexmots_rl.envs.object_pregrasp import check_object_pregrasp, object_regions, operate_pregrasp_path, \
-    release_drift
+from dexmots_rl.envs.object_pregrasp import check_object_pregrasp, find_object_pregrasps, object_regions, \
+    operate_pregrasp_path, release_drift
 from dexmots_rl.envs.pregrasp import PregraspError, load_pregrasps
 from dexmots_rl.envs.tasks.allegro.operate_object import OperateObjectEnv, build_scene
-from dexmots_rl.sim import ArticulatedSimulator
+from dexmots_rl.sim import ArticulatedSimulator, load_scene
 
 from partnet_fixtures import stapler
 
@@ -114,3 +116,19 @@ def test_a_bad_grasp_region_names_its_field(change, message):
 def test_dexmots_pregrasp_operate_arguments(argv, message):
     with pytest.raises(SystemExit, match=message):
         pregrasp_app.main(argv)
+
+
+@pytest.mark.parametrize("object_class", sorted(GENERATORS))
+def test_a_drawn_variant_of_every_class_gets_pregrasps(object_class, tmp_path):
+    """The regions come from each generator's own sizes: a variant drawn around the class's defaults (sizes
+    +-10 %, feel +-30 %) gets verified pre-grasps too."""
+    asset = GENERATORS[object_class](rng=11, name=f"{object_class}_variant")
+    path = tmp_path / "scene.xml"
+    path.write_text(hand_object_scene_xml(asset, tmp_path))
+    scene = load_scene(path)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    poses = find_object_pregrasps(scene, asset, object_regions(asset, model, data), candidates=4, keep=1,
+                                  contact=OperateObjectEnv.contact_params)
+    assert poses.shape == (1, scene.num_hand_dofs)

@@ -166,8 +166,10 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
     # index and middle side by side on the arm's top toward the front, the thumb on the base plate's top
     # edge on its side (+y); the hand sits 3 cm ahead of the plate's middle, 8 mm above the hinge
     arm_top, edge = (0.75 * p.arm_length, 0.0, -drop + h), (0.0, p.width / 2, plate_h)
-    regions = (grasp_region("index", "arm", np.add(arm_top, (0, 0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0)),
-               grasp_region("middle", "arm", np.add(arm_top, (0, -0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0)),
+    # (touching the arm, aimed 1.5 mm short of it: a press would push it down, toward the goal)
+    regions = (grasp_region("index", "arm", np.add(arm_top, (0, 0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0), -0.0015),
+               grasp_region("middle", "arm", np.add(arm_top, (0, -0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0),
+                            -0.0015),
                grasp_region("thumb", "base", edge, (0, 1, 1), (0.006, 0.0, 0.0)))
     return ObjectAsset(
         name=name, object_class="stapler", base="free", operated_joint="arm",
