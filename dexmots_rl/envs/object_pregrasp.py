@@ -37,7 +37,7 @@ import numpy as np
 from .pregrasp import PregraspError, _finger_sites, _solve_ik
 
 __all__ = ["object_regions", "fallback_regions", "find_object_pregrasps", "check_object_pregrasp",
-           "release_drift", "object_drift", "operate_pregrasp_path", "OPERATE_HINT", "FREE_POSE"]
+           "release_drift", "object_drift", "operate_pregrasp_path", "OPERATE_HINT", "FREE_POSE", "TUCKED_POSE"]
 
 log = logging.getLogger(__name__)
 
