@@ -32,7 +32,7 @@ def _actor(env):
     obs, act = env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1]
     net = torch.nn.Sequential(torch.nn.Linear(obs, 64), torch.nn.Tanh(), torch.nn.Linear(64, 64), torch.nn.Tanh(),
                               torch.nn.Linear(64, act), torch.nn.Tanh())
-    return TensorDictModule(net, in_keys=["observation"], out_keys=["action"])
+    return TensorDictModule(net.to(env.device), in_keys=["observation"], out_keys=["action"])
 
 
 def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: str = "cpu") -> dict:

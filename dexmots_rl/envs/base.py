@@ -30,6 +30,7 @@ from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
 from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
+from .demos import read_demo
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
@@ -110,7 +111,12 @@ class DexEnv(EnvBase):
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
         self.param_ranges = self._param_ranges()
-        self.reference_bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
+        if config.demo is not None and config.references is not None:
+            raise ValueError("task.demo and task.references both given: a task follows one reference")
+        self._bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
+        # a demonstration is read (and checked) now, and turned into the task's reference once the task's own
+        # fields exist (the first use of reference_bank; make_env makes that use before returning)
+        self._demo = None if config.demo is None else read_demo(config.demo)
         self.actions = ActionMap(self.sim, config.action, center=self.action_center)
         self.action_type = config.action
         self._make_specs()
@@ -178,6 +184,20 @@ class DexEnv(EnvBase):
         """The object-centric reference at env steps ``steps`` [N, H] of each world's plan: a TensorDict
         [N, H] with ``"pose"`` [7], ``"joint_q"`` [K], ``"wrench"`` [6] and ``"joint_torque"`` [K]; ``td``
         holds the worlds' ``("task", ...)`` and ``("sim", ...)`` entries."""
+
+    @property
+    def reference_bank(self) -> TensorDict | None:
+        """The plans (``task.references``) or the demonstration (``task.demo``) the worlds follow, a TensorDict
+        [M, T] (:mod:`dexmots_rl.envs.references`); None: the task's analytic reference."""
+        if self._demo is not None:
+            self._bank = load_reference_bank([self.demo_reference(self._demo)], self.dtype, self.device)
+            self._demo = None
+        return self._bank
+
+    def demo_reference(self, demo: dict):
+        """The :class:`~dexmots_rl.trajectories.PoseWrenchTrajectory` this task follows for a pose-only
+        demonstration (:func:`~dexmots_rl.envs.demos.read_demo`'s dict); tasks that can follow one override it."""
+        raise ValueError(f"task.demo: task {self.config.name!r} does not follow pose-only demonstrations")
 
     @abstractmethod
     def achieved_goal(self, obs: dict) -> torch.Tensor:

@@ -66,6 +66,8 @@ class TaskConfig:
     substeps: int = 16  # physics substeps per env step
     # plan file / directory from dexmots-plan (from Python also a list of plans); None: the task's analytic reference
     references: Optional[str] = dataclasses.field(default=None, metadata=rule(objects=True))
+    # a pose-only demonstration to follow (.npz / .pt, layout in dexmots_rl.envs.demos); None: the task's reference
+    demo: Optional[str] = None
     reward: RewardCoefficients = dataclasses.field(default_factory=RewardCoefficients)  # paper Eq. 3's λ
     mirror: bool = False  # worlds with a negative goal see the task mirrored (a mirror-symmetric task's option)
 

@@ -129,6 +129,7 @@ def make_env(task: str | TaskConfig, num_envs: int | None = None, device="cpu", 
     entry = task_entry(cfg.name)
     env = entry.env_class(cfg, num_envs=cfg.num_envs if num_envs is None else num_envs, device=device,
                           differentiable=differentiable, seed=seed, dtype=dtype, adjoint_clip=adjoint_clip)
+    env.reference_bank  # a demonstration becomes the task's reference now: its errors surface here
     if raw:
         return env
     env = TransformedEnv(env, observation_transform(cfg.goal, cfg.goal_horizon))

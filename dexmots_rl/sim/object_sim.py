@@ -26,6 +26,7 @@ from tensordict import TensorDict
 from .mjcf_shapes import AssetError
 from .object_kernels import LIMIT_WIDTH, build_object_kernels
 from .object_model import MAX_SAMPLES, ObjectTree, object_tree
+from .simulator import check_device
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
 
@@ -80,7 +81,7 @@ class ObjectSimulator:
         self.tree, self.num_worlds, self.substeps, self.sub_dt = tree, num_worlds, substeps, sub_dt
         self.dt = sub_dt * substeps
         self.dtype = dtype
-        self.torch_device = torch.device(device)
+        self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         self.table = table or TableContact()
         self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free, MAX_SAMPLES,

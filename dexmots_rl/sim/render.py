@@ -54,6 +54,7 @@ from .render_kernels import (
     place_segments,
     render_kernel,
 )
+from .simulator import check_device
 from .stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["Camera", "Renderer", "default_camera", "reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND",
@@ -184,7 +185,7 @@ class Renderer:
             raise ValueError(f"image size must be positive, got {height}x{width}")
         self.scene, self.height, self.width = scene, int(height), int(width)
         self.camera = camera or default_camera(scene, aspect=self.width / self.height)
-        self.torch_device = torch.device(device)
+        self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         a, b, r, body, col = _segments(scene)
 

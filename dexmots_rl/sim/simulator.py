@@ -96,15 +96,17 @@ def _box_of_planes(planes) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def check_device(device) -> torch.device:
-    """``torch.device(device)``, or a ``ValueError`` naming it when it is a GPU this machine lacks (warp
-    would fail later with an ``IndexError`` deep in its device table)."""
+    """``torch.device(device)`` with its index (``"cuda"`` is the current GPU, ``cuda:<i>``: warp's device
+    table needs the index), or a ``ValueError`` naming it when it is a GPU this machine lacks (warp would
+    fail later with an ``IndexError`` deep in its device table)."""
     dev = torch.device(device)
     if dev.type == "cuda":
         count = torch.cuda.device_count() if torch.cuda.is_available() else 0
-        index = 0 if dev.index is None else dev.index
+        index = (torch.cuda.current_device() if count else 0) if dev.index is None else dev.index
         if index >= count:
             raise ValueError(f"device {str(device)!r} is not available: this machine has {count} CUDA device(s)"
                              f"{'' if count else ' (or torch was built without CUDA)'}; use device='cpu'")
+        dev = torch.device("cuda", index)
     elif dev.type != "cpu":
         raise ValueError(f"device {str(device)!r} is not supported: use 'cpu' or 'cuda[:index]'")
     return dev

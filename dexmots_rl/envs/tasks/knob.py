@@ -34,14 +34,15 @@ import torch
 from tensordict import TensorDict
 
 from ..base import DexEnv
+from ...trajectories import PoseWrenchTrajectory
 from ..config import TaskConfig, rule
+from ..demos import demo_trajectory, part_torque
 from ..references import lookup
 from ..rewards import action_penalty, angle_tracking_reward, distal_weighted_joint_weights, fingertip_reward
 
 __all__ = ["KnobTurnConfig", "KnobTurnEnv", "PARAM_BREAKDOWNS", "REFERENCE_TORQUES"]
 
 REFERENCE_TORQUES = ("nominal", "episode")  # whose knob the reference torque is computed for
-KNOB_FRICTION_VELOCITY = 0.05  # rad/s, the simulator's smoothing of joint Coulomb friction
 # dexmots-eval breakdowns by the knob joint's randomised parameters (every knob-like task draws them)
 PARAM_BREAKDOWNS = {"friction": ("sim", "params", "joint_friction"), "damping": ("sim", "params", "joint_damping")}
 RANGE = rule(ge=0, ordered=True)  # a (low, high) pair of non-negative numbers
@@ -146,10 +147,19 @@ class KnobTurnEnv(DexEnv):
             damping, friction, stiffness, rest = (td[("sim", "params", name)].to(self.dtype)[:, None]  # [N, 1, 1]
                                                   for name in ("joint_damping", "joint_friction", "joint_stiffness",
                                                                "joint_rest"))
-        torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / KNOB_FRICTION_VELOCITY), 0.0)
         # a sprung part (spray trigger, stapler arm) is held against its spring; a knob's stiffness is 0
-        torque = torque + stiffness * (angle - rest)
-        return angle, torque
+        return angle, part_torque(torch.where(moving, speed, 0.0), angle, (damping, friction, stiffness, rest))
+
+    def demo_reference(self, demo: dict):
+        """The knob turning as demonstrated, about its hinge where it stands (the pose follows the angle)."""
+        traj = demo_trajectory(demo, self.sim.dt, self.sim.scene.object_base_pos, (1.0, 0.0, 0.0, 0.0),
+                               self._nominal)
+        half = 0.5 * traj.joint_q
+        axis = self._axis.to(torch.float64).cpu()
+        quat = torch.cat([torch.cos(half), torch.sin(half) * axis], -1)
+        wrench = torch.cat([torch.zeros_like(traj.pos), traj.joint_torque * axis], -1)
+        return PoseWrenchTrajectory(traj.pos, quat, wrench, traj.dt, joint_q=traj.joint_q,
+                                    joint_torque=traj.joint_torque)
 
     def reference(self, td, steps: torch.Tensor) -> TensorDict:
         if self.reference_bank is not None:

@@ -6,11 +6,11 @@ j0-j15 in that order), capsule links (radius 9.8 mm) and fingertip spheres (12 m
 knob (``assets/allegro_knob.xml``), ``repose_cube`` palm up with a cube on its colliding palm box
 (``assets/allegro_cube.xml``); ``spray_bottle``, ``scissors`` and ``stapler`` palm down over an operable
 object (``assets/allegro_<object>.xml``, :mod:`.operate`); ``operate`` over any articulated object of the
-library or a URDF (:mod:`.operate_object`).
+library or a URDF (:mod:`.operate_object`), and one task per library class on it (:mod:`.tools`).
 """
 
 from __future__ import annotations
 
-from . import operate_object, repose, rotate, scissors, spray_bottle, stapler  # noqa: F401  (register the tasks)
+from . import operate_object, repose, rotate, scissors, spray_bottle, stapler, tools  # noqa: F401  (register the tasks)
 
-__all__ = ["operate_object", "repose", "rotate", "scissors", "spray_bottle", "stapler"]
+__all__ = ["operate_object", "repose", "rotate", "scissors", "spray_bottle", "stapler", "tools"]

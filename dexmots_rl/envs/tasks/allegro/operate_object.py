@@ -36,9 +36,12 @@ from typing import ClassVar, Optional
 import torch
 from tensordict import TensorDict
 
+from ....quaternions import quat_angle
 from ...base import DexEnv
+from ...demos import demo_trajectory, part_torque
 from ...object_pregrasp import operate_pregrasp_path
 from ...pregrasp import PregraspError, load_pregrasps
+from ...references import lookup
 from ...registry import register_task
 from .operate import HAND_CONTACT
 from ...config import TaskConfig, rule
@@ -48,7 +51,6 @@ from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward
 __all__ = ["OperateObjectConfig", "OperateObjectEnv", "build_scene"]
 
 OPEN = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)  # rad: fingers slightly curled, the thumb opposed
-FRICTION_VELOCITY = 0.05  # rad/s: the simulator's smoothing of joint Coulomb friction
 
 
 @dataclasses.dataclass
@@ -183,12 +185,16 @@ class OperateObjectEnv(DexEnv):
             start = self._pregrasps[(self._rand(n) * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
         hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         obj = torch.as_tensor(self.sim.tree.q0, dtype=self.dtype, device=self.device).expand(n, -1)
+        ref_index = self.sample_ref_index(n)
+        goal = torch.full((n, 1), self.goal_value, dtype=self.dtype, device=self.device)
+        if self.reference_bank is not None:  # a plan's or a demonstration's last row
+            goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
         return {
             "joint_q": torch.cat([hand, obj], -1),
             "joint_qd": torch.zeros(n, self.sim.nv, dtype=self.dtype, device=self.device),
             "params": self.sample_params(n),
-            "goal": torch.full((n, 1), self.goal_value, dtype=self.dtype, device=self.device),
-            "ref_index": self.sample_ref_index(n),
+            "goal": goal,
+            "ref_index": ref_index,
         }
 
     # ----------------------------------------------------------------------------------- observations
@@ -217,16 +223,25 @@ class OperateObjectEnv(DexEnv):
     # ----------------------------------------------------------------------------------- reference
     def joint_reference(self, td, steps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(position, torque)`` of the operated joint's reference at env steps ``steps`` [N, H], each [N, H, 1]."""
+        if self.reference_bank is not None:
+            ref = lookup(self.reference_bank, td[("task", "ref_index")], steps)
+            return ref["joint_q"], ref["joint_torque"]
         goal = td[("task", "goal")]
         frac = (steps.to(self.dtype) / self.config.ramp_steps).clamp(max=1.0).unsqueeze(-1)
         angle = self.joint_rest + (goal.unsqueeze(1) - self.joint_rest) * frac
         speed = (goal.unsqueeze(1) - self.joint_rest) / (self.config.ramp_steps * self.sim.dt)
         moving = ((steps >= 1) & (steps <= self.config.ramp_steps)).unsqueeze(-1)
-        damping, friction, stiffness, rest = self._nominal
-        torque = torch.where(moving, damping * speed + friction * torch.tanh(speed / FRICTION_VELOCITY), 0.0)
-        return angle, torque + stiffness * (angle - rest)
+        return angle, part_torque(torch.where(moving, speed, 0.0), angle, self._nominal)
+
+    def demo_reference(self, demo: dict):
+        """The operated joint moving as demonstrated, the base held where it stands."""
+        tree = self.sim.tree
+        return demo_trajectory(demo, self.sim.dt, self._base0[:3].double().cpu(), self._base0[3:].double().cpu(),
+                               self._nominal, mass=float(tree.mass.sum()), inertia=tree.inertia[0])
 
     def reference(self, td, steps: torch.Tensor) -> TensorDict:
+        if self.reference_bank is not None:
+            return lookup(self.reference_bank, td[("task", "ref_index")], steps)
         angle, torque = self.joint_reference(td, steps)
         pose = self._base0.expand(*angle.shape[:2], 7)
         wrench = torch.zeros(*angle.shape[:2], 6, dtype=self.dtype, device=self.device)
@@ -248,8 +263,7 @@ class OperateObjectEnv(DexEnv):
             zero = torch.zeros_like(pose[:, :1])
             return zero, zero
         shift = (pose[:, :3] - self._base0[:3]).norm(dim=-1, keepdim=True)
-        dot = (pose[:, 3:] * self._base0[3:]).sum(-1, keepdim=True).abs().clamp(max=1.0)
-        return shift, 2 * torch.acos(dot)
+        return shift, quat_angle(self._base0[3:].expand_as(pose[:, 3:]), pose[:, 3:])  # finite gradient at 0
 
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
         ref_angle, _ = self.joint_reference(task, task[("task", "step")])
