@@ -132,3 +132,15 @@ def test_a_drawn_variant_of_every_class_gets_pregrasps(object_class, tmp_path):
     poses = find_object_pregrasps(scene, asset, object_regions(asset, model, data), candidates=4, keep=1,
                                   contact=OperateObjectEnv.contact_params)
     assert poses.shape == (1, scene.num_hand_dofs)
+
+
+def test_dexmots_pregrasp_on_a_tool_task_searches_its_object(tmp_path, capsys):
+    """``--task jar`` (a task built on operate) searches jar_a's pre-grasps; the jar task starts from the file."""
+    pregrasp_app.main(["--task", "jar", "--candidates", "4", "--keep", "1", "--out", str(tmp_path)])
+    out = tmp_path / "jar_a.json"
+    assert capsys.readouterr().out.strip() == str(out)
+    assert json.loads(out.read_text())["object"] == "jar_a"
+    env = make_env("jar", num_envs=1, seed=0, joint_noise=0.0, pregrasps=str(out), raw=True)
+    hand = env.reset()["sim", "joint_q"][0, :env.sim.nu]
+    expected = torch.as_tensor(json.loads(out.read_text())["poses"][0], dtype=hand.dtype)
+    assert torch.allclose(hand, expected, atol=1e-5)

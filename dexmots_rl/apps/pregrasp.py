@@ -11,7 +11,8 @@
 The file goes where ``--out`` says (a file, or a directory for ``<task>.json``, or ``<object>.json`` for task
 ``operate``; default: the current directory), never into the installed package unless ``--out`` names it; a
 task uses it through its ``task.pregrasps`` field. Task ``operate`` needs ``--object`` (a library object or a
-URDF; :func:`dexmots_rl.envs.object_pregrasp.find_object_pregrasps`) or ``--all`` (every library object).
+URDF; :func:`dexmots_rl.envs.object_pregrasp.find_object_pregrasps`) or ``--all`` (every library object); a
+task built on it (``drawer``, ``jar``, ...) searches its own object (``--object`` picks another).
 Deterministic for a seed (:func:`dexmots_rl.envs.pregrasp.find_pregrasps`); the file is written atomically.
 """
 
@@ -71,6 +72,15 @@ def generate_operate(object_name: str, candidates: int = 8, keep: int = 4, seed:
     return path
 
 
+def _operates_objects(task: str) -> bool:
+    """Whether ``task`` is ``operate`` or a task built on it (a tool task: its object's pre-grasps)."""
+    from ..envs import list_tasks
+    from ..envs.registry import task_entry
+    from ..envs.tasks.allegro.operate_object import OperateObjectEnv
+
+    return task in list_tasks() and issubclass(task_entry(task).env_class, OperateObjectEnv)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="dexmots-pregrasp", description=__doc__.splitlines()[0])
     p.add_argument("--task", required=True)
@@ -89,10 +99,15 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("candidates", "keep"):
         if getattr(args, name) < 1:
             raise SystemExit(f"dexmots-pregrasp: --{name} must be >= 1, got {getattr(args, name)}")
+    on_objects = _operates_objects(args.task)
     if args.task == "operate" and (args.object is None) == (not args.all):
         raise SystemExit("dexmots-pregrasp: --task operate needs --object <name or .urdf path> or --all")
-    if args.task != "operate" and (args.object is not None or args.all):
+    if not on_objects and (args.object is not None or args.all):
         raise SystemExit(f"dexmots-pregrasp: --object and --all are for --task operate, not {args.task!r}")
+    if on_objects and args.object is None and not args.all:  # a tool task: its own object
+        from ..envs.registry import task_config
+
+        args.object = task_config(args.task).object
     if args.all:
         from ..assets.objects import list_objects
 
