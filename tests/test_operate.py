@@ -29,7 +29,7 @@ def test_operate_every_library_object(name):
 def test_operate_a_partnet_urdf(tmp_path):
     """A PartNet-Mobility-style folder (mobility.urdf and OBJ pieces) is an object ``operate`` trains on."""
     path = stapler(tmp_path)
-    env = make_env("operate", num_envs=2, object=str(path), seed=0)
+    env = make_env("operate", num_envs=2, object=str(path), seed=0, initial="open")
     td = env.rollout(3, break_when_any_done=False)
     assert td["next", "object", "q"].shape[-1] == 1
     assert torch.isfinite(td["next", "reward"]).all()

@@ -3,11 +3,13 @@
 The hand is ``allegro_knob.xml``'s (the same links, joints, motors and mount: palm down, fingers along world
 +x, fingertips curling down and back toward the thumb), with gravity on and its palm box colliding. The object (an
 :class:`~dexmots_rl.assets.objects.ObjectAsset`) stands on a table plane so that its grasp point (where a hand
-holds the tool) is at the world origin, where the knob of ``allegro_rotate`` stands: in the fingers' reach.
+holds the tool) is at the world origin, where the knob of ``allegro_rotate`` stands: in the fingers' reach,
+the object turned about the vertical by its ``grasp_yaw`` (a spray bottle's trigger toward the thumb).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from . import asset_path
@@ -28,8 +30,12 @@ def hand_object_scene_xml(asset, mesh_dir: str | Path, grasp_point=GRASP_POINT) 
                                                                'contype="1" conaffinity="2"') + hand_body[end:]
     head = hand[hand.index("  <compiler"):hand.index("  <asset>")].replace('gravity="0 0 0"', 'gravity="0 0 -9.81"')
     actuators = hand[hand.index("  <actuator>"):]
-    gx, gy, gz = (g - a for g, a in zip(grasp_point, asset.grasp))
-    assets, body = asset.mjcf(mesh_dir, pos=(gx, gy, gz))
+    # the base turned by grasp_yaw about the vertical, placed so that its grasp point lands on grasp_point
+    c, s = math.cos(asset.grasp_yaw), math.sin(asset.grasp_yaw)
+    ax, ay, az = asset.grasp
+    gx, gy, gz = grasp_point[0] - (c * ax - s * ay), grasp_point[1] - (s * ax + c * ay), grasp_point[2] - az
+    turn = (math.cos(asset.grasp_yaw / 2), 0.0, 0.0, math.sin(asset.grasp_yaw / 2))
+    assets, body = asset.mjcf(mesh_dir, pos=(gx, gy, gz), quat=turn)
     return (f'<mujoco model="allegro_{asset.name}">\n{head}  <asset>\n{assets}  </asset>\n  <worldbody>\n'
             f'    <geom name="table" type="plane" pos="0 0 {gz!r}" size="0.5 0.5 0.01" contype="1" conaffinity="2" '
             f'rgba="0.8 0.75 0.65 1"/>\n{hand_body}{body}  </worldbody>\n{actuators}')

@@ -22,6 +22,8 @@ ships one per task (``assets/pregrasps/<task>.json``); ``dexmots-pregrasp --task
 where the user says, deterministically for a seed, and a task uses it with ``task.pregrasps=<file>``. A file
 is read, and checked whole (:func:`load_pregrasps`), when its task's env is built.
 Tasks with ``initial="pregrasp"`` draw one of these per episode (:class:`~.tasks.allegro.operate.OperateEnv`).
+The articulated objects of task ``operate`` describe their own regions and are searched by
+:mod:`.object_pregrasp`, into the same file format (with the ``object`` it belongs to).
 """
 
 from __future__ import annotations
@@ -200,12 +202,12 @@ def find_pregrasps(scene_path, regions, hint, candidates: int = 8, seed: int = 0
     return np.stack(kept)
 
 
-def save_pregrasps(path, task: str, poses: np.ndarray, seed: int) -> None:
-    """Write pre-grasps atomically (JSON: format, task, seed, poses)."""
+def save_pregrasps(path, task: str, poses: np.ndarray, seed: int, **fields) -> None:
+    """Write pre-grasps atomically (JSON: format, task, seed, poses, and ``fields``, e.g. ``object``)."""
     from ..atomic import atomic_write_json
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(path, {"format": FORMAT, "task": task, "seed": seed,
+    atomic_write_json(path, {"format": FORMAT, "task": task, **fields, "seed": seed,
                              "poses": [[round(float(x), 6) for x in p] for p in poses]})
 
 
@@ -213,11 +215,13 @@ def save_pregrasps(path, task: str, poses: np.ndarray, seed: int) -> None:
 LIMIT_TOLERANCE = 1e-3
 
 
-def load_pregrasps(path, num_dofs: int, task: str | None = None, lower=None, upper=None) -> np.ndarray:
+def load_pregrasps(path, num_dofs: int, task: str | None = None, lower=None, upper=None,
+                   object_name: str | None = None) -> np.ndarray:
     """Pre-grasps [K, num_dofs] from ``path``, the whole file checked: its format, its ``task`` (when ``task``
     is given, the file must be that task's), and every entry of ``poses`` (a list of ``num_dofs`` finite
     joint angles, within ``[lower, upper]`` per joint when given, rad). One :class:`PregraspError` naming
-    the file and the first bad field or entry (``poses[2][5]``) otherwise; nothing is clamped."""
+    the file and the first bad field or entry (``poses[2][5]``) otherwise; nothing is clamped. With
+    ``object_name``, a file that names its ``object`` must name that one."""
     path = Path(path)
     if not path.is_file():
         raise PregraspError(f"{path}: no pre-grasp file (write one with: dexmots-pregrasp --task <name>)")
@@ -230,6 +234,9 @@ def load_pregrasps(path, num_dofs: int, task: str | None = None, lower=None, upp
     if task is not None and data.get("task") != task:
         raise PregraspError(f"{path}: field 'task' is {data.get('task')!r}, but the file is loaded for task {task!r} "
                             "(a pre-grasp file holds one task's hand poses)")
+    if object_name is not None and data.get("object", object_name) != object_name:
+        raise PregraspError(f"{path}: field 'object' is {data.get('object')!r}, but the file is loaded for object "
+                            f"{object_name!r} (a pre-grasp file holds one object's hand poses)")
     poses = data.get("poses")
     if not isinstance(poses, list) or not poses:
         raise PregraspError(f"{path}: field 'poses' must be a non-empty list of poses ({num_dofs} joint angles each)")

@@ -7,9 +7,10 @@ table as a MuJoCo model.
 
 from __future__ import annotations
 
-from .description import GEOM_KINDS, MAX_MOVING_PARTS, Geom, Joint, ObjectAsset, ObjectError, Part
+from .description import (FINGERS, GEOM_KINDS, MAX_MOVING_PARTS, Geom, GraspRegion, Joint, ObjectAsset, ObjectError,
+                          Part)
 from .library import INSTANCES, list_objects, load_object
 from .scene import object_scene_xml, posed_meshes
 
-__all__ = ["GEOM_KINDS", "MAX_MOVING_PARTS", "Geom", "Joint", "ObjectAsset", "ObjectError", "Part",
-           "INSTANCES", "list_objects", "load_object", "object_scene_xml", "posed_meshes"]
+__all__ = ["FINGERS", "GEOM_KINDS", "MAX_MOVING_PARTS", "Geom", "GraspRegion", "Joint", "ObjectAsset", "ObjectError",
+           "Part", "INSTANCES", "list_objects", "load_object", "object_scene_xml", "posed_meshes"]

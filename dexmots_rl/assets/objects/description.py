@@ -30,13 +30,15 @@ from typing import Literal
 
 import numpy as np
 
-__all__ = ["Geom", "Joint", "Part", "ObjectAsset", "ObjectError", "MAX_MOVING_PARTS", "GEOM_KINDS"]
+__all__ = ["Geom", "Joint", "Part", "GraspRegion", "ObjectAsset", "ObjectError", "MAX_MOVING_PARTS", "GEOM_KINDS",
+           "FINGERS"]
 
 MAX_MOVING_PARTS = 4
 GEOM_KINDS = ("box", "capsule", "sphere", "cylinder", "mesh")
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
+FINGERS = ("index", "middle", "ring", "thumb")  # the Allegro hand's fingers, as its MJCF names them
 
 
 class ObjectError(ValueError):
@@ -96,13 +98,32 @@ class Part:
     visual: str | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class GraspRegion:
+    """Where one fingertip rests when a hand holds the tool: on part ``part``, at ``point`` (m) with the
+    surface's outward ``normal`` there (both in the part's frame, at joint position 0); a pre-grasp search
+    draws the contact within ``spread`` (m, +- along the part frame's axes) of the point and aims the
+    fingertip ``squeeze`` (m) into the surface (None: the search's default; 0 where a light press would
+    already move the part toward its goal). ``finger``: one of :data:`FINGERS`."""
+
+    finger: str
+    part: str
+    point: Vec3
+    normal: Vec3
+    spread: Vec3 = (0.0, 0.0, 0.0)
+    squeeze: float | None = None
+
+
 @dataclasses.dataclass
 class ObjectAsset:
     """An operable object: parts[0] is the base, the rest move on joints (see the module docstring).
 
     ``object_class`` (e.g. ``"spray_bottle"``) and ``params`` (the generator's named sizes and physical values)
     say where it came from; ``operated_joint`` is the joint a task drives by default; ``grasp`` is where a
-    hand holds the tool (a point in the base frame, m), used to place pre-grasps. ``meshes`` maps names to
+    hand holds the tool (a point in the base frame, m), placed under the palm in a hand scene, the object
+    turned there by ``grasp_yaw`` (rad, about the vertical) so that the hand meets it from the side it is held;
+    ``grasp_regions`` say where each fingertip of a holding hand rests (:class:`GraspRegion`, one per
+    finger at most; empty: none described, as for a URDF). ``meshes`` maps names to
     watertight ``trimesh.Trimesh`` objects in their part's frame (visual meshes, and the collision of
     ``kind="mesh"`` geoms)."""
 
@@ -112,6 +133,8 @@ class ObjectAsset:
     base: Literal["free", "fixed"] = "free"
     operated_joint: str | None = None
     grasp: Vec3 = (0.0, 0.0, 0.0)
+    grasp_regions: tuple[GraspRegion, ...] = ()
+    grasp_yaw: float = 0.0
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     meshes: dict = dataclasses.field(default_factory=dict)
     description: str = ""
@@ -169,6 +192,22 @@ class ObjectAsset:
         if self.operated_joint is not None and self.operated_joint not in joint_names:
             raise ObjectError(f"{where}.operated_joint: {self.operated_joint!r} is not one of {sorted(joint_names)}")
         _check_finite(self.grasp, 3, f"{where}.grasp")
+        if not math.isfinite(self.grasp_yaw):
+            raise ObjectError(f"{where}.grasp_yaw: must be a finite angle in rad, got {self.grasp_yaw!r}")
+        fingers: set[str] = set()
+        for i, r in enumerate(self.grasp_regions):
+            at = f"{where}.grasp_regions[{i}]"
+            if r.finger not in FINGERS or r.finger in fingers:
+                raise ObjectError(f"{at}.finger: must be one of {FINGERS}, each at most once, got {r.finger!r}")
+            fingers.add(r.finger)
+            if r.part not in seen:
+                raise ObjectError(f"{at}.part: {r.part!r} is not a part of the object; its parts: {sorted(seen)}")
+            for field in ("point", "normal", "spread"):
+                _check_finite(getattr(r, field), 3, f"{at}.{field}")
+            if np.linalg.norm(r.normal) < 1e-9 or min(r.spread) < 0:
+                raise ObjectError(f"{at}: the normal must be non-zero and the spread >= 0")
+            if r.squeeze is not None and not (math.isfinite(r.squeeze) and abs(r.squeeze) < 0.01):
+                raise ObjectError(f"{at}.squeeze: must be None or a depth under 1 cm (m), got {r.squeeze!r}")
 
     # ------------------------------------------------------------------------------------------- MJCF
     def mjcf(self, mesh_dir: str | Path, pos: Vec3 = (0.0, 0.0, 0.0), quat: Quat = IDENTITY) -> tuple[str, str]:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import (Params, box_geom, capsule_geom, cylinder_geom, make_rng, param, with_mass)
+from .common import (Params, box_geom, capsule_geom, cylinder_geom, grasp_region, make_rng, param, with_mass)
 
 __all__ = ["SprayBottleParams", "spray_bottle", "PumpDispenserParams", "pump_dispenser", "JarParams", "jar"]
 
@@ -105,11 +105,22 @@ def spray_bottle(params: SprayBottleParams | None = None, rng=None, name: str = 
                                         TRIGGER_RED)], p.trigger_mass)
     joint = Joint("trigger", "hinge", (0.0, 1.0, 0.0), (0.0, p.trigger_travel), stiffness=p.trigger_stiffness,
                   rest=-p.trigger_preload, damping=p.trigger_damping, friction=p.trigger_friction)
+    # a palm-down hand cannot reach round the head to the trigger's front: the bottle stands turned half a turn
+    # (grasp_yaw), the thumb rests on the trigger's front face, index and ring finger on the bottle's back, either
+    # side of the head
+    def on_back(finger, angle):  # angle: from the back (-x), toward -y (the index's side once turned)
+        out = (-math.cos(angle), -math.sin(angle), 0.0)
+        return grasp_region(finger, "bottle", (p.body_radius * out[0], p.body_radius * out[1], p.body_height + 0.004),
+                            out, (0.0, 0.0, 0.004))
+
+    regions = (on_back("index", 0.6), on_back("ring", -0.6),
+               grasp_region("thumb", "trigger", (0.009, 0.0, -0.55 * length), (1, 0, 0), (0.0, 0.003, 0.004),
+                            squeeze=-0.0015))  # touching: a press would pull the trigger
     return ObjectAsset(
         name=name, object_class="spray_bottle", base="free", operated_joint="trigger",
         parts=(Part("bottle", base_geoms, visual="bottle"),
                Part("trigger", trigger_geoms, parent="bottle", joint=joint, pos=hinge, visual="trigger")),
-        grasp=(0.0, 0.0, float(p.body_height + shoulder)), params=p.as_dict(),
+        grasp=(0.0, 0.0, float(p.body_height + 0.01)), grasp_regions=regions, grasp_yaw=math.pi, params=p.as_dict(),
         meshes={"bottle": base_mesh, "trigger": trigger_mesh},
         description="trigger spray bottle; pull the trigger back toward the neck")
 
@@ -168,11 +179,16 @@ def pump_dispenser(params: PumpDispenserParams | None = None, rng=None, name: st
     ], p.head_mass)
     joint = Joint("pump", "slide", (0.0, 0.0, -1.0), (0.0, p.stroke), stiffness=p.stiffness, rest=-p.preload,
                   damping=p.damping, friction=p.friction)
+    # the middle fingertip on the head's top, the thumb behind the collar: the hand sits 4 cm above the head
+    back = (-math.cos(0.5), math.sin(0.5), 0.0)
+    regions = (grasp_region("middle", "pump", (0.0, 0.0, z_head + head_h), (0, 0, 1), (0.003, 0.003, 0.0)),
+               grasp_region("thumb", "bottle", (collar_r * back[0], collar_r * back[1], z_collar - 0.006), back,
+                            (0.0, 0.0, 0.003)))
     return ObjectAsset(
         name=name, object_class="pump_dispenser", base="free", operated_joint="pump",
         parts=(Part("bottle", base_geoms, visual="bottle"),
                Part("pump", pump_geoms, parent="bottle", joint=joint, pos=(0.0, 0.0, z_collar), visual="pump")),
-        grasp=(0.0, 0.0, float(p.body_height)), params=p.as_dict(),
+        grasp=(0.0, 0.0, float(z_collar + z_head + head_h - 0.04)), grasp_regions=regions, params=p.as_dict(),
         meshes={"bottle": base_mesh, "pump": pump_mesh},
         description="pump dispenser; press the head down")
 
@@ -222,10 +238,18 @@ def jar(params: JarParams | None = None, rng=None, name: str = "jar") -> ObjectA
     lid_geoms = with_mass([cylinder_geom("lid", lid_r + rib_r, (0, 0, -0.004), (0, 0, lid_h), LID_GOLD)],
                           p.lid_mass)
     joint = Joint("lid", "hinge", (0.0, 0.0, 1.0), (0.0, p.turn), damping=p.damping, friction=p.friction)
+    # index and middle on the lid's rim ahead (+x), the thumb on the rim behind: a pinch across the lid
+    rim, mid = lid_r + rib_r, (lid_h - 0.004) / 2
+
+    def on_rim(finger, angle):
+        out = (math.cos(angle), math.sin(angle), 0.0)
+        return grasp_region(finger, "lid", (rim * out[0], rim * out[1], mid), out, (0.0, 0.0, 0.002))
+
+    regions = (on_rim("index", 0.45), on_rim("middle", -0.35), on_rim("thumb", math.pi - 0.2))
     return ObjectAsset(
         name=name, object_class="jar", base="free", operated_joint="lid",
         parts=(Part("jar", jar_geoms, visual="jar"),
                Part("lid", lid_geoms, parent="jar", joint=joint, pos=(0.0, 0.0, top), visual="lid")),
-        grasp=(0.0, 0.0, float(top + lid_h / 2)), params=p.as_dict(),
+        grasp=(0.0, 0.0, float(top + lid_h / 2)), grasp_regions=regions, params=p.as_dict(),
         meshes={"jar": jar_mesh, "lid": lid_mesh},
         description="jar with a screw lid; twist the lid counter-clockwise seen from above")

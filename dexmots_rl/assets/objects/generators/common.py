@@ -16,11 +16,11 @@ from typing import Literal, Sequence
 import numpy as np
 import trimesh
 
-from ..description import Geom, ObjectError
+from ..description import Geom, GraspRegion, ObjectError
 from ..shapes import rotation_between
 
 __all__ = ["param", "Params", "make_rng", "box_geom", "capsule_geom", "cylinder_geom", "sphere_geom",
-           "mesh_geom", "with_mass", "axis_angle_quat", "matrix_quat"]
+           "mesh_geom", "with_mass", "axis_angle_quat", "matrix_quat", "grasp_region"]
 
 Kind = Literal["size", "mass", "feel", "count", "angle"]
 JITTER = {"size": 1.0, "mass": 1.0, "feel": 3.0, "angle": 1.0, "count": 0.0}
@@ -148,3 +148,14 @@ def with_mass(geoms: Sequence[Geom], mass: float, meshes: dict | None = None) ->
     """The geoms with ``mass`` (kg) shared in proportion to their volumes (a part of uniform density)."""
     volumes = np.array([_volume(g, meshes or {}) for g in geoms])
     return tuple(dataclasses.replace(g, mass=float(mass * v / volumes.sum())) for g, v in zip(geoms, volumes))
+
+
+# ------------------------------------------------------------------------------------------ grasp regions
+def grasp_region(finger: str, part: str, surface_point, normal, spread=(0.002, 0.002, 0.002),
+                 squeeze: float | None = None) -> GraspRegion:
+    """A fingertip's region (:class:`~..description.GraspRegion`): ``surface_point`` on ``part``'s collision
+    surface (part frame, m) and the outward ``normal`` there (normalised here)."""
+    n = np.asarray(normal, dtype=float)
+    n = n / np.linalg.norm(n)
+    return GraspRegion(finger, part, tuple(float(x) for x in surface_point), tuple(float(x) for x in n),
+                       tuple(float(x) for x in spread), squeeze)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import Params, box_geom, capsule_geom, cylinder_geom, make_rng, param, with_mass
+from .common import Params, box_geom, capsule_geom, cylinder_geom, grasp_region, make_rng, param, with_mass
 
 __all__ = ["ValveParams", "valve", "DrawerParams", "drawer", "DoorHandleParams", "door_handle"]
 
@@ -66,12 +66,18 @@ def valve(params: ValveParams | None = None, rng=None, name: str = "valve") -> O
     valve_geoms = with_mass([capsule_geom(f"spoke{i}", p.spoke_radius, (0, 0, z), end, VALVE_GREEN)
                              for i, end in enumerate(ends)], p.valve_mass)
     joint = Joint("valve", "hinge", (0.0, 0.0, 1.0), (0.0, p.turn), damping=p.damping, friction=p.friction)
+    # index and middle pinch the spoke along +x from either side; the thumb rests on the next spoke's top
+    r, at = p.spoke_radius, 0.6 * p.spoke_length
+    next_spoke = (at * math.cos(angles[1]), at * math.sin(angles[1]), z + r)
+    regions = (grasp_region("index", "valve", (at, r, z), (0, 1, 0), (0.006, 0.0, 0.002)),
+               grasp_region("middle", "valve", (at, -r, z), (0, -1, 0), (0.006, 0.0, 0.002)),
+               grasp_region("thumb", "valve", next_spoke, (0, 0, 1), (0.002, 0.002, 0.0)))
     return ObjectAsset(
         name=name, object_class="valve", base="fixed", operated_joint="valve",
         parts=(Part("base", base_geoms, visual="base"),
                Part("valve", valve_geoms, parent="base", joint=joint, pos=(0.0, 0.0, p.post_height),
                     visual="valve")),
-        grasp=(0.0, 0.0, float(p.post_height + z)), params=p.as_dict(),
+        grasp=(0.0, 0.0, float(p.post_height + z)), grasp_regions=regions, params=p.as_dict(),
         meshes={"base": base_mesh, "valve": valve_mesh},
         description=f"{p.spokes}-spoke valve; turn it counter-clockwise")
 
@@ -131,12 +137,20 @@ def drawer(params: DrawerParams | None = None, rng=None, name: str = "drawer") -
         box_geom("back", (side, inner_w, inner_h), (-tray_d + side / 2, 0, gap + inner_h / 2), DRAWER_CREAM),
     ], p.drawer_mass)
     joint = Joint("drawer", "slide", (1.0, 0.0, 0.0), (0.0, p.travel), damping=p.damping, friction=p.friction)
+    # index and middle over the bar, tucked toward the drawer's front (a fingertip is wider than the gap
+    # behind the bar); the thumb stays free (reaching the front past the cabinet's top, it would cross it)
+    over = np.array([-0.45, 0.0, 0.89]) / np.linalg.norm([-0.45, 0.0, 0.89])
+    y = min(0.013, hw - 0.01)
+    regions = (grasp_region("index", "drawer", (bar_x + p.handle_radius * over[0], y, zc + p.handle_radius * over[2]),
+                            over, (0.0, 0.002, 0.0)),
+               grasp_region("middle", "drawer", (bar_x + p.handle_radius * over[0], -y,
+                                                 zc + p.handle_radius * over[2]), over, (0.0, 0.002, 0.0)))
     return ObjectAsset(
         name=name, object_class="drawer", base="fixed", operated_joint="drawer",
         parts=(Part("cabinet", cabinet_geoms, visual="cabinet"),
                Part("drawer", drawer_geoms, parent="cabinet", joint=joint, pos=(D / 2, 0.0, t),
                     visual="drawer")),
-        grasp=(float(D / 2 + bar_x), 0.0, float(zc + t)), params=p.as_dict(),
+        grasp=(float(D / 2 + bar_x), 0.0, float(zc + t)), grasp_regions=regions, params=p.as_dict(),
         meshes={"cabinet": cabinet_mesh, "drawer": drawer_mesh},
         description="drawer in a cabinet; pull it out by its handle")
 
@@ -189,11 +203,21 @@ def door_handle(params: DoorHandleParams | None = None, rng=None, name: str = "d
     ], p.lever_mass)
     joint = Joint("lever", "hinge", (-1.0, 0.0, 0.0), (0.0, p.turn), stiffness=p.stiffness, rest=-p.preload,
                   damping=p.damping, friction=p.friction)
+    # index and middle on the lever's top, the thumb under it between them; the lever lies 2.5 cm behind the
+    # point under the palm, where the thumb reaches under it
+    def on_lever(finger, along, below):  # below: under the lever and a little behind it, where the thumb comes from
+        normal = np.array([-0.5, 0.0, -0.87] if below else [0.0, 0.0, 1.0])
+        normal /= np.linalg.norm(normal)
+        centre = (neck_l - 0.002 * along / p.lever_length, along, -0.004 * along / p.lever_length)
+        return grasp_region(finger, "lever", np.add(centre, r * normal), normal, (0.0, 0.004, 0.0))
+
+    regions = (on_lever("index", 0.85 * p.lever_length, False), on_lever("middle", 0.5 * p.lever_length, False),
+               on_lever("thumb", 0.7 * p.lever_length, True))
     return ObjectAsset(
         name=name, object_class="door_handle", base="fixed", operated_joint="lever",
         parts=(Part("door", base_geoms, visual="door"),
                Part("lever", lever_geoms, parent="door", joint=joint, pos=(rosette_t, 0.0, p.handle_height),
                     visual="lever")),
-        grasp=(float(rosette_t + neck_l), float(0.6 * p.lever_length), float(p.handle_height)),
-        params=p.as_dict(), meshes={"door": base_mesh, "lever": lever_mesh},
+        grasp=(float(rosette_t + neck_l + 0.025), float(0.6 * p.lever_length), float(p.handle_height)),
+        grasp_regions=regions, params=p.as_dict(), meshes={"door": base_mesh, "lever": lever_mesh},
         description="lever door handle; press the lever down")

@@ -11,7 +11,10 @@ import math
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import (Params, axis_angle_quat, box_geom, capsule_geom, make_rng, mesh_geom, param, with_mass)
+import numpy as np
+
+from .common import (Params, axis_angle_quat, box_geom, capsule_geom, grasp_region, make_rng, mesh_geom, param,
+                     with_mass)
 
 __all__ = ["ScissorsParams", "scissors", "StaplerParams", "stapler", "PliersParams", "pliers"]
 
@@ -80,11 +83,17 @@ def scissors(params: ScissorsParams | None = None, rng=None, name: str = "scisso
     moving_geoms = _scissor_half(p, -1.0, p.thickness, HANDLE_BLUE, "b", meshes)
     joint = Joint("pivot", "hinge", (0.0, 0.0, 1.0), (0.0, p.opening), stiffness=p.stiffness, rest=-p.preload,
                   damping=p.damping, friction=p.friction)
+    # the thumb in (on) the base half's ring, the middle finger in the other's; the rings lie 2.5 cm behind
+    # the point under the palm, where the thumb reaches down
+    top = 1.5 * p.thickness
+    regions = (grasp_region("thumb", "half_a", (-p.handle_length, p.handle_spread, top), (0, 0, 1)),
+               grasp_region("middle", "half_b", (-p.handle_length, -p.handle_spread, top), (0, 0, 1)))
     return ObjectAsset(
         name=name, object_class="scissors", base="free", operated_joint="pivot",
         parts=(Part("half_a", base_geoms, visual="half_a"),
                Part("half_b", moving_geoms, parent="half_a", joint=joint, visual="half_b")),
-        grasp=(float(-p.handle_length), 0.0, float(p.thickness)), params=p.as_dict(), meshes=meshes,
+        grasp=(float(0.025 - p.handle_length), 0.0, float(p.thickness)), grasp_regions=regions,
+        params=p.as_dict(), meshes=meshes,
         description="scissors lying flat; open them by spreading the finger rings")
 
 
@@ -154,12 +163,20 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
     hinge = (-half + 0.012, 0.0, p.hinge_height)
     joint = Joint("arm", "hinge", (0.0, 1.0, 0.0), (0.0, p.open_angle), stiffness=p.stiffness,
                   rest=-p.preload, damping=p.damping, friction=p.friction)
+    # index and middle side by side on the arm's top toward the front, the thumb on the base plate's top
+    # edge on its side (+y); the hand sits 3 cm ahead of the plate's middle, 8 mm above the hinge
+    arm_top, edge = (0.75 * p.arm_length, 0.0, -drop + h), (0.0, p.width / 2, plate_h)
+    # (touching the arm, aimed 1.5 mm short of it: a press would push it down, toward the goal)
+    regions = (grasp_region("index", "arm", np.add(arm_top, (0, 0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0), -0.0015),
+               grasp_region("middle", "arm", np.add(arm_top, (0, -0.012, 0)), (0, 0, 1), (0.006, 0.002, 0.0),
+                            -0.0015),
+               grasp_region("thumb", "base", edge, (0, 1, 1), (0.006, 0.0, 0.0)))
     return ObjectAsset(
         name=name, object_class="stapler", base="free", operated_joint="arm",
         parts=(Part("base", base_geoms, visual="base"),
                Part("arm", arm_geoms, parent="base", joint=joint, pos=hinge,
                     quat=axis_angle_quat((0.0, 1.0, 0.0), -p.open_angle), visual="arm")),
-        grasp=(float(half - 0.04), 0.0, float(p.hinge_height + 0.04)), params=p.as_dict(),
+        grasp=(0.03, 0.0, float(p.hinge_height + 0.008)), grasp_regions=regions, params=p.as_dict(),
         meshes={"base": base_mesh, "arm": arm_mesh},
         description="desktop stapler; press the arm down onto the base")
 
@@ -211,6 +228,19 @@ def _pliers_half(p: PliersParams, side: float, z0: float, tag: str, meshes: dict
     return with_mass(geoms, p.half_mass)
 
 
+def _on_grip(p: PliersParams, finger: str, part: str, side: float, along: float):
+    """A fingertip on the outer upper flank of a grip (``along``: 0 at the grip's start, 1 at its end): the
+    thumb on one handle and two fingers on the other pinch the pliers the way a squeeze closes them."""
+    start = np.array([-0.4 * p.handle_length, side * 0.4 * p.handle_spread, p.grip_radius])
+    end = np.array([-p.handle_length, side * p.handle_spread, p.grip_radius])
+    d = (end - start) / np.linalg.norm(end - start)
+    outward = np.array([-d[1], d[0], 0.0])
+    outward = outward if outward[1] * side > 0 else -outward
+    normal = (outward + (0.0, 0.0, 1.0)) / np.sqrt(2.0)
+    return grasp_region(finger, part, start + along * (end - start) + p.grip_radius * normal, normal,
+                        (0.003, 0.0, 0.0))
+
+
 def pliers(params: PliersParams | None = None, rng=None, name: str = "pliers") -> ObjectAsset:
     """Pliers lying flat with their handles spread by an opening spring: one half is the free base; the
     other turns about the pivot (axis -z) and q > 0 squeezes the handles together, closing the jaws. The
@@ -226,9 +256,12 @@ def pliers(params: PliersParams | None = None, rng=None, name: str = "pliers") -
     moving_geoms = _pliers_half(p, -1.0, p.thickness, "half_b", meshes)
     joint = Joint("pivot", "hinge", (0.0, 0.0, -1.0), (0.0, squeeze), stiffness=p.stiffness, rest=-p.preload,
                   damping=p.damping, friction=p.friction)
+    regions = (_on_grip(p, "thumb", "half_a", +1.0, 0.5), _on_grip(p, "middle", "half_b", -1.0, 0.25),
+               _on_grip(p, "ring", "half_b", -1.0, 0.7))
     return ObjectAsset(
         name=name, object_class="pliers", base="free", operated_joint="pivot",
         parts=(Part("half_a", base_geoms, visual="half_a"),
                Part("half_b", moving_geoms, parent="half_a", joint=joint, visual="half_b")),
-        grasp=(float(-0.7 * p.handle_length), 0.0, float(p.thickness)), params=p.as_dict(), meshes=meshes,
+        grasp=(float(0.02 - 0.7 * p.handle_length), 0.0, float(p.thickness)), grasp_regions=regions,
+        params=p.as_dict(), meshes=meshes,
         description="pliers lying flat; squeeze the handles together")

@@ -7,8 +7,11 @@ over; a fixed one cannot move), and is simulated by :class:`~dexmots_rl.sim.arti
 Per episode: the operated joint (``task.joint``, default the object's ``operated_joint``) starts at rest and
 its goal is ``rest + goal_fraction (far end - rest)``, the far end being the end of its range farther from
 rest (90 % of the travel by default: the original code's goal); every joint's damping, Coulomb friction and
-spring stiffness are drawn within ``param_scale`` (relative) of the object's values. The hand starts open
-above the object (``initial="open"``) with joint noise. Success at the episode end: the joint within
+spring stiffness are drawn within ``param_scale`` (relative) of the object's values. The hand starts from one
+of the object's pre-grasps (``initial="pregrasp"``, the default: fingertips resting where a person holds the
+tool, :mod:`dexmots_rl.envs.object_pregrasp`; the package ships a file per library object, and a URDF's come from
+``dexmots-pregrasp --task operate --object <path>`` through ``task.pregrasps``), or open above the object
+(``initial="open"``), with joint noise. Success at the episode end: the joint within
 ``success_band`` (a fraction of its range) of the goal, and a free base moved less than ``max_base_shift`` and
 tilted less than ``max_base_tilt`` from where it stood.
 
@@ -36,6 +39,8 @@ from tensordict import TensorDict
 from ....quaternions import quat_angle
 from ...base import DexEnv
 from ...demos import demo_trajectory, part_torque
+from ...object_pregrasp import operate_pregrasp_path
+from ...pregrasp import PregraspError, load_pregrasps
 from ...references import lookup
 from ...registry import register_task
 from .operate import HAND_CONTACT
@@ -55,8 +60,9 @@ class OperateObjectConfig(TaskConfig):
     name: str = "operate"
     object: str = "spray_bottle_a"  # a library object (dexmots_rl.assets.objects.list_objects) or a .urdf path
     joint: Optional[str] = None  # the operated joint (None: the object's operated_joint)
-    initial: str = dataclasses.field(default="open", metadata=rule(choices="initial_choices"))
-    initial_choices: ClassVar[tuple[str, ...]] = ("open",)
+    initial: str = dataclasses.field(default="pregrasp", metadata=rule(choices="initial_choices"))
+    initial_choices: ClassVar[tuple[str, ...]] = ("pregrasp", "open")
+    pregrasps: Optional[str] = None  # a pre-grasp file (dexmots-pregrasp --task operate --object ...); None: shipped
     goal_fraction: float = dataclasses.field(default=0.9, metadata=rule(gt=0, le=1))  # of the joint's travel
     success_band: float = dataclasses.field(default=0.1, metadata=rule(gt=0, le=1))  # of the joint's range
     max_base_shift: float = 0.02  # m: a free base moved farther fails
@@ -150,6 +156,21 @@ class OperateObjectEnv(DexEnv):
         self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
+        self._pregrasps = self._read_pregrasps() if c.initial == "pregrasp" else None
+
+    def _read_pregrasps(self) -> torch.Tensor:
+        """The start poses [K, nu]: ``task.pregrasps`` or the library object's shipped file, checked whole."""
+        c, scene = self.config, self.sim.scene
+        library = not c.object.lower().endswith(".urdf")
+        if c.pregrasps is None and not library:
+            raise PregraspError(f"task.object {c.object!r}: a URDF object has no shipped pre-grasps; write them with "
+                                f"dexmots-pregrasp --task operate --object {c.object} and pass task.pregrasps=<file>, "
+                                "or start with task.initial=open")
+        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(c.object)
+        name = self.object_asset.name if self.object_asset is not None else None
+        poses = load_pregrasps(path, self.sim.nu, "operate", scene.dof_lower[:self.sim.nu],
+                               scene.dof_upper[:self.sim.nu], object_name=name)
+        return torch.as_tensor(poses, dtype=self.dtype, device=self.device)
 
     def _param_ranges(self) -> dict:
         s = self.config.param_scale
@@ -159,7 +180,10 @@ class OperateObjectEnv(DexEnv):
     # ----------------------------------------------------------------------------------- episodes
     def sample_initial(self, n: int) -> dict:
         noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
-        hand = torch.minimum(torch.maximum(self._open + noise, self._lower), self._upper)
+        start = self._open
+        if self._pregrasps is not None:  # one of the pre-grasps per episode
+            start = self._pregrasps[(self._rand(n) * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
+        hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         obj = torch.as_tensor(self.sim.tree.q0, dtype=self.dtype, device=self.device).expand(n, -1)
         ref_index = self.sample_ref_index(n)
         goal = torch.full((n, 1), self.goal_value, dtype=self.dtype, device=self.device)
