@@ -56,13 +56,15 @@ def _tree_of(obj):
     return load_object_tree(load_object(obj) if isinstance(obj, str) else obj)[0]
 
 
-def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iterations: int = 200, lr: float = 0.05,
+def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iterations: int = 200, lr: float | None = None,
                            max_grad_norm: float = 10.0, params: dict | None = None, substeps: int = 16,
                            dtype: torch.dtype = torch.float32, progress: bool = True) -> PlanResult:
     """Plan the force on joint ``joint`` of ``obj`` (a library name, an :class:`ObjectAsset`, an
     :class:`ObjectTree` or a task's articulated scene) that moves it from ``start`` to ``goal`` (each a float
     or ``[N]`` for N plans at once) in ``steps`` env steps; ``lr`` in N m (or N) per iteration, decayed
-    linearly to 5 %; ``params``: named joint parameters (``"<joint>/damping"``, ...) per plan."""
+    linearly to 5 % (default: a tenth of the largest quasi-static force, at least 1e-3); ``params``: named
+    joint parameters (``"<joint>/damping"``, ...) per plan."""
+    from ..envs.demos import part_torque
     from ..sim.object_sim import ObjectSimulator
 
     if steps < 1 or iterations < 0:
@@ -116,7 +118,12 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
         return _tracking_error(simulate(u), reference[:, 1:], False, 1.0)
 
     hold = torch.zeros(n, steps, 1, dtype=dtype)
-    force = hold.clone().requires_grad_(True)
+    values = named.to_dict()
+    nominal = [values[f"{joint}/{p}"].reshape(n, 1, 1) for p in ("damping", "friction", "stiffness", "rest")]
+    speed = (reference[:, 1:] - reference[:, :-1]) / sim.dt
+    guess = part_torque(speed, reference[:, 1:], nominal).detach()
+    lr = lr if lr is not None else max(0.1 * float(guess.abs().max()), 1e-3)
+    force = guess.clone().requires_grad_(True)
     opt = torch.optim.Adam([force], lr=lr)
     decay = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 1.0 - 0.95 * i / max(iterations, 1))
     history: list[float] = []

@@ -1,0 +1,26 @@
+"""Planning an articulated object's operated joint through the object simulator (optimize_joint_torques)."""
+
+import pytest
+import torch
+
+from dexmots_rl.envs import make_env
+from dexmots_rl.trajectories.joint_planner import optimize_joint_torques
+
+
+@pytest.mark.parametrize("name,joint,goal", [("drawer_a", "drawer", 0.03), ("spray_bottle_a", "trigger", 0.15)])
+def test_the_plan_tracks_the_ramp_and_a_task_follows_it(name, joint, goal):
+    """A slide (fixed base) and a sprung hinge (free base, held): the planned force brings the joint to the goal
+    and the plan is a reference the operate task reads (goal: its last row)."""
+    plan = optimize_joint_torques(name, joint, 0.0, goal, steps=6, iterations=60, progress=False)
+    traj = plan.trajectory
+    assert plan.final_error < 0.5 * plan.initial_error
+    assert abs(float(traj.joint_q[-1, 0]) - goal) < 0.2 * goal
+    assert traj.horizon == 7 and torch.isfinite(traj.joint_torque).all()
+    env = make_env("operate", object=name, num_envs=2, references=[traj], seed=0, raw=True, differentiable=False)
+    td = env.reset()
+    assert torch.allclose(td["task", "goal"], traj.joint_q[-1].to(td["task", "goal"].dtype))
+
+
+def test_a_joint_that_is_not_there_is_named():
+    with pytest.raises(ValueError, match="joint 'lid' is not a joint"):
+        optimize_joint_torques("drawer_a", "lid", 0.0, 0.05, steps=2, iterations=1, progress=False)
