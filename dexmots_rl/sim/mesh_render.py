@@ -19,13 +19,17 @@ with one directional light plus ambient, flat per triangle. Output: ``uint8 [N, 
 shapes) for the knob and cube scenes.
 
 Example:
-    >>> import torch
-    >>> from dexmots_rl.sim.mesh_render import MeshRenderer
-    >>> from dexmots_rl.envs.tasks.allegro.operate_object import build_scene  # doctest: +SKIP
-    >>> scene, asset = build_scene("spray_bottle_a")  # doctest: +SKIP
-    >>> r = MeshRenderer(scene, 32, 32)  # doctest: +SKIP
-    >>> r.body_names[-2:]  # doctest: +SKIP
-    ['object', 'object/trigger']
+    >>> from dexmots_rl.envs.tasks.allegro.operate_object import build_scene
+    >>> from dexmots_rl.sim import ArticulatedSimulator
+    >>> scene, asset = build_scene("spray_bottle_a")
+    >>> sim = ArticulatedSimulator(scene, num_worlds=2)
+    >>> r = MeshRenderer(scene, height=32, width=32)
+    >>> q, _ = sim.initial_state()
+    >>> img, labels = r.render_state(sim, q, labels=True)
+    >>> img.shape, img.dtype, r.body_names[-2:]
+    (torch.Size([2, 32, 32, 3]), torch.uint8, ['object', 'object/trigger'])
+    >>> bool((labels == r.label("object/trigger")).any())
+    True
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from .articulated_scene import ArticulatedScene
 from .render import Camera, Renderer, camera_view, framing_camera, hand_reach_spheres
 from .render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
                                   mesh_render_kernel, place_bodies)
@@ -54,7 +59,7 @@ def make_renderer(scene, height: int = 64, width: int = 64, camera: Camera | Non
                   device: str | torch.device = "cpu", asset=None):
     """The renderer of ``scene``: a :class:`MeshRenderer` for an articulated-object scene (``asset``: its object,
     used when the scene's MJCF file is gone), else a :class:`~.render.Renderer`."""
-    if getattr(scene, "articulated", False):
+    if isinstance(scene, ArticulatedScene):
         return MeshRenderer(scene, height, width, camera=camera, device=device, asset=asset)
     return Renderer(scene, height, width, camera=camera, device=device)
 
