@@ -69,22 +69,22 @@ def mesh_background_kernel(sc: MeshScene, view: View, rays: wp.array(dtype=wp.ve
 
 
 @wp.kernel
-def place_bodies(sc: MeshScene, pose: wp.array3d(dtype=float), xform: wp.array2d(dtype=wp.transform),
+def place_bodies(sc: MeshScene, pose: wp.array3d(dtype=float), inv_xform: wp.array2d(dtype=wp.transform),
                  bound: wp.array2d(dtype=wp.vec4)):
-    """Each drawn body's frame and world bounding sphere, thread = (world, drawn body)."""
+    """Each drawn body's world-to-body transform and world bounding sphere, thread = (world, drawn body)."""
     w, k = wp.tid()
     b = sc.body[k]
     tf = wp.transform_identity()
     if b >= 0:
         tf = wp.transform(wp.vec3(pose[w, b, 0], pose[w, b, 1], pose[w, b, 2]),
                           wp.quat(pose[w, b, 4], pose[w, b, 5], pose[w, b, 6], pose[w, b, 3]))
-    xform[w, k] = tf
+    inv_xform[w, k] = wp.transform_inverse(tf)
     c = wp.transform_point(tf, sc.centre[k])
     bound[w, k] = wp.vec4(c[0], c[1], c[2], sc.radius[k])
 
 
 @wp.kernel
-def mesh_render_kernel(sc: MeshScene, view: View, xform: wp.array2d(dtype=wp.transform),
+def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp.transform),
                        bound: wp.array2d(dtype=wp.vec4), rays: wp.array(dtype=wp.vec3),
                        bg_depth: wp.array(dtype=float), bg_color: wp.array(dtype=wp.vec3),
                        bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
@@ -107,13 +107,12 @@ def mesh_render_kernel(sc: MeshScene, view: View, xform: wp.array2d(dtype=wp.tra
         h = bb * bb - (wp.dot(oc, oc) - sb[3] * sb[3])
         # the ray meets the bounding sphere in front of the camera, nearer than what is hit so far
         if h >= 0.0 and -bb + wp.sqrt(h) > 0.0 and -bb - wp.sqrt(h) < best:
-            tf = xform[w, k]
-            inv = wp.transform_inverse(tf)
+            inv = inv_xform[w, k]
             q = wp.mesh_query_ray(sc.mesh[k], wp.transform_point(inv, ro), wp.transform_vector(inv, rd), best)
             if q.result and q.t > 0.0 and q.t < best:
                 best = q.t
                 hit_body = k
-                normal = wp.transform_vector(tf, q.normal)
+                normal = wp.quat_rotate_inv(wp.transform_get_rotation(inv), q.normal)
                 albedo = sc.face_color[sc.face_start[k] + q.face]
     color = bg_color[p]
     if hit_body >= 0:
