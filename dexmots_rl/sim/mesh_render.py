@@ -47,7 +47,8 @@ from .render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, Mesh
 from .scene_meshes import STATIC, SceneGeometry, scene_geometry
 from .stepper import cpu_threads, launch_stream, run_blocks
 
-__all__ = ["MeshRenderer", "make_renderer", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL"]
+__all__ = ["MeshRenderer", "make_renderer", "framing_spheres", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE",
+           "FIRST_BODY_LABEL"]
 
 log = logging.getLogger(__name__)
 
