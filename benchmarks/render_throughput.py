@@ -5,10 +5,10 @@
 
 For each object and world count: ``state`` and ``rgb`` are env-steps/s of ``env.rollout`` with random actions
 (``make_env("operate", object=..., differentiable=False)``, alone or with the :class:`RGBObservation` that
-``obs="rgb"`` appends, at ``--size``: it renders an image of every world after each reset and step); ``render`` is images/s of
-:meth:`MeshRenderer.render_state` alone on the rollout's last states. Each rate is the best of ``--repeats``
-windows of at least ``--min-time`` seconds (the first rollout, which compiles and caches the kernels, is not timed).
-The report names the machine (CPU, cores, GPU), the date and the commit.
+``obs="rgb"`` appends, at ``--size``: it renders an image of every world after each reset and step); ``render`` is
+images/s of :meth:`MeshRenderer.render_state` alone on the rollout's last states. Each rate is the best of
+``--repeats`` windows of at least ``--min-time`` seconds (the first rollout, which compiles and caches the kernels,
+is not timed). The report names the machine (CPU, cores, GPU), the date and the commit.
 """
 
 from __future__ import annotations

@@ -215,7 +215,8 @@ class MeshRenderer:
         return (image, lab) if labels else image
 
     def render_state(self, sim, joint_q: torch.Tensor, labels: bool = False):
-        """Render states ``joint_q [N, nq]`` of ``sim`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`)."""
+        """Render states ``joint_q [N, nq]`` of ``sim`` (an
+        :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`)."""
         pose, _ = sim.observe(joint_q.detach())
         return self.render(pose, labels=labels)
 
