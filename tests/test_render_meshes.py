@@ -91,6 +91,8 @@ def test_bad_inputs_and_renderer_choice(scene, claw_scene):
         r.label("nose")
     with pytest.raises(ValueError, match="image size"):
         MeshRenderer(sim.scene, 0, 8, geometry=r.geometry)
+    with pytest.raises(ValueError, match="cuda:7"):
+        MeshRenderer(sim.scene, 8, 8, device="cuda:7", geometry=r.geometry)
     assert isinstance(make_renderer(sim.scene, 8, 8), MeshRenderer)
     assert type(make_renderer(claw_scene, 8, 8)) is Renderer
 

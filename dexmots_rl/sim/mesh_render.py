@@ -45,6 +45,7 @@ from .render import Camera, Renderer, camera_view, framing_camera, hand_reach_sp
 from .render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
                                   mesh_render_kernel, place_bodies)
 from .scene_meshes import STATIC, SceneGeometry, scene_geometry
+from .simulator import check_device
 from .stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["MeshRenderer", "make_renderer", "framing_spheres", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE",
@@ -106,7 +107,7 @@ class MeshRenderer:
             centres, radii = framing_spheres(scene, geometry)
             camera = framing_camera(centres, radii, -np.asarray(VIEW_DIRECTION), fov, self.width / self.height)
         self.camera = camera
-        self.torch_device = torch.device(device)
+        self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         self.num_bodies = len(geometry.body_names)
         self._build(geometry, tile)
