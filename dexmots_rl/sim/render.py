@@ -1,4 +1,7 @@
-"""RGB images of every world from one warp ray-casting kernel (forward only, no gradients).
+"""RGB images of every world from one warp ray-casting kernel (forward only, no gradients): the knob and cube scenes.
+
+A scene with an articulated object (task ``operate``) is drawn from its meshes by :mod:`.mesh_render`
+(:func:`~.mesh_render.make_renderer` picks the renderer of a scene).
 
 One launch renders all worlds: one thread per pixel per world casts a ray from a fixed pinhole camera
 (per-pixel rays and the floor/sky behind the scene are computed once per camera; a tiny launch per call
