@@ -14,7 +14,7 @@ step is ``substeps`` physics steps of the MJCF's timestep.
   the calling thread alone for one world), ``nstep = substeps * chunk_steps``.
 
 With ``obs="rgb"`` our ``fwd``/``fwdbwd`` chunks also render a 64x64 image of every world after each
-step (:class:`dexmots_rl.sim.render.Renderer`); MuJoCo's rows stay physics only.
+step (:func:`dexmots_rl.sim.mesh_render.make_renderer`); MuJoCo's rows stay physics only.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ class SimBench:
         self.chunk_steps = chunk_steps
         self.renderer = None
         if obs == "rgb":
-            from ..sim.render import Renderer
+            from ..sim.mesh_render import make_renderer
 
-            self.renderer = Renderer(scene, 64, 64, device=device)
+            self.renderer = make_renderer(scene, 64, 64, device=device)
         opts = dict(dtype=sim.dtype, device=sim.torch_device)
         gear = torch.as_tensor(scene.actuator_gear, **opts)
         tau = (torch.tensor(task.close_action, **opts) * gear).expand(num_envs, sim.nu).contiguous()

@@ -7,10 +7,10 @@ of an unchanged module is a file check: PTX for a given compute capability (no G
 this machine's CPU or GPU loads, compiled and loaded exactly as a run does (a run then finds it cached).
 
 :func:`compile_kernels` compiles the modules of a :class:`~dexmots_rl.sim.Simulator`'s kernels (the
-substep and the observation, specialised for its scene and float type), :func:`compile_renderer`
-the renderer's; one row per module says how long it took, whether the cache already had it, and,
-on failure, the compiler's message (NVRTC prints its log on the process's stderr, which is captured
-at the file-descriptor level for the duration of the build).
+substep and the observation, specialised for its scene and float type), :func:`compile_renderer` and
+:func:`compile_mesh_renderer` the renderers'; one row per module says how long it took, whether the cache
+already had it, and, on failure, the compiler's message (NVRTC prints its log on the process's stderr, which
+is captured at the file-descriptor level for the duration of the build).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 
 import warp as wp
 
-__all__ = ["compile_kernels", "compile_renderer", "simulator_kernels", "warp_versions"]
+__all__ = ["compile_kernels", "compile_renderer", "compile_mesh_renderer", "simulator_kernels", "warp_versions"]
 
 
 def warp_versions() -> dict:
@@ -107,10 +107,23 @@ def compile_kernels(sim, device: str = "cuda", arch: int | None = 90) -> list[di
 
 
 def compile_renderer(device: str = "cuda", arch: int | None = 90) -> dict:
-    """Compile the renderer's kernels (one module, the same for every scene); a row as :func:`compile_kernels`'s."""
-    _check_device(device)
+    """Compile the analytic renderer's kernels (one module, the same for every knob and cube scene); a row as
+    :func:`compile_kernels`'s."""
     from . import render_kernels
 
-    names = [name for name, value in vars(render_kernels).items() if isinstance(value, wp.Kernel)]
-    return _compile_module(wp.get_module(render_kernels.__name__), "+".join(names), device,
+    return _compile_kernel_module(render_kernels, device, arch)
+
+
+def compile_mesh_renderer(device: str = "cuda", arch: int | None = 90) -> dict:
+    """Compile the mesh renderer's kernels (one module, the same for every articulated-object scene); a row as
+    :func:`compile_kernels`'s."""
+    from . import render_mesh_kernels
+
+    return _compile_kernel_module(render_mesh_kernels, device, arch)
+
+
+def _compile_kernel_module(module, device: str, arch: int | None) -> dict:
+    _check_device(device)
+    names = [name for name, value in vars(module).items() if isinstance(value, wp.Kernel)]
+    return _compile_module(wp.get_module(module.__name__), "+".join(names), device,
                            arch if device == "cuda" else None)

@@ -1,4 +1,7 @@
-"""RGB images of every world from one warp ray-casting kernel (forward only, no gradients).
+"""RGB images of every world from one warp ray-casting kernel (forward only, no gradients): the knob and cube scenes.
+
+A scene with an articulated object (task ``operate``) is drawn from its meshes by :mod:`.mesh_render`
+(:func:`~.mesh_render.make_renderer` picks the renderer of a scene).
 
 One launch renders all worlds: one thread per pixel per world casts a ray from a fixed pinhole camera
 (per-pixel rays and the floor/sky behind the scene are computed once per camera; a tiny launch per call
@@ -57,8 +60,8 @@ from .render_kernels import (
 from .simulator import check_device
 from .stepper import cpu_threads, launch_stream, run_blocks
 
-__all__ = ["Camera", "Renderer", "default_camera", "reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND",
-           "LABEL_OBJECT"]
+__all__ = ["Camera", "Renderer", "default_camera", "framing_camera", "camera_view", "reach_spheres",
+           "hand_reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT"]
 
 MIN_PIXELS_PER_THREAD = 16384  # below this a second CPU thread costs more than it saves
 FINGER_HUES = ((0.85, 0.25, 0.2), (0.2, 0.7, 0.3), (0.95, 0.6, 0.1), (0.6, 0.3, 0.8), (0.9, 0.8, 0.2))
@@ -83,8 +86,18 @@ def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 def reach_spheres(scene: SceneModel, samples: int = 512, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Centres [M, 3] and radii [M] of spheres covering the hand over ``samples`` random joint
-    configurations within the joint limits (unlimited hinges over a full turn, unlimited slides at 0) and the object's
-    bounding sphere at its initial pose: what :func:`default_camera` frames."""
+    configurations within the joint limits (:func:`hand_reach_spheres`) and the object's bounding sphere at its
+    initial pose: what :func:`default_camera` frames."""
+    centres, radii = hand_reach_spheres(scene, samples, seed)
+    obj = scene.object_base_pos if scene.object_kind == OBJECT_HINGE else scene.object_q0[:3]
+    return (np.concatenate([centres, np.asarray(obj, np.float64)[None]]),
+            np.concatenate([radii, [scene.object_bound]]))
+
+
+def hand_reach_spheres(scene, samples: int = 512, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Centres [M, 3] and radii [M] of the hand's contact spheres over ``samples`` random joint configurations
+    within the joint limits (unlimited hinges over a full turn, unlimited slides at 0); ``scene`` has the hand
+    fields of :class:`SceneModel`."""
     rng = np.random.default_rng(seed)
     hinge = scene.joint_type == HINGE  # unlimited: hinges over a full turn, slides at 0
     lo = np.where(scene.dof_limited, scene.dof_lower, np.where(hinge, -math.pi, 0.0))
@@ -106,9 +119,6 @@ def reach_spheres(scene: SceneModel, samples: int = 512, seed: int = 0) -> tuple
             pts = scene.point_pos[i * p_per : (i + 1) * p_per]
             centres.append((x[:, None] + np.einsum("sab,pb->spa", rot, pts)).reshape(-1, 3))
             radii.append(np.tile(scene.point_radius[i * p_per : (i + 1) * p_per], samples))
-    obj = scene.object_base_pos if scene.object_kind == OBJECT_HINGE else scene.object_q0[:3]
-    centres.append(np.asarray(obj, np.float64)[None])
-    radii.append(np.array([scene.object_bound]))
     return np.concatenate(centres), np.concatenate(radii)
 
 
@@ -117,14 +127,24 @@ def default_camera(scene: SceneModel, elevation: float = 60.0, fov: float = 45.0
     reach within its joint limits and the object (:func:`reach_spheres`), for images of ``aspect``
     (width / height)."""
     centres, radii = reach_spheres(scene)
-    lo, hi = (centres - radii[:, None]).min(0), (centres + radii[:, None]).max(0)
-    target = 0.5 * (lo + hi)
     obj = centres[-1]
     ahead = obj - scene.finger_base_pos.mean(0)
     ahead[2] = 0.0
     ahead = ahead / np.linalg.norm(ahead) if np.linalg.norm(ahead) > 1e-9 else np.array([1.0, 0.0, 0.0])
     el = math.radians(elevation)
     fwd = ahead * math.cos(el) - np.array([0.0, 0.0, math.sin(el)])  # from the camera towards the target
+    return framing_camera(centres, radii, fwd, fov, aspect)
+
+
+def framing_camera(centres: np.ndarray, radii: np.ndarray, forward, fov: float = 45.0,
+                   aspect: float = 1.0) -> Camera:
+    """The camera looking along ``forward`` (not vertical) at the centre of the spheres' bounding box, from
+    the nearest distance at which every sphere (``centres`` [M, 3], ``radii`` [M], m) is inside the frame
+    (5 % margin), for images of ``aspect`` (width / height)."""
+    centres, radii = np.asarray(centres, np.float64), np.asarray(radii, np.float64)
+    lo, hi = (centres - radii[:, None]).min(0), (centres + radii[:, None]).max(0)
+    target = 0.5 * (lo + hi)
+    fwd = np.asarray(forward, np.float64) / np.linalg.norm(forward)
     right = np.cross(fwd, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     up = np.cross(right, fwd)
@@ -135,6 +155,26 @@ def default_camera(scene: SceneModel, elevation: float = 60.0, fov: float = 45.0
     dist = float((need - rel @ fwd + radii).max())
     pos = target - fwd * dist
     return Camera(tuple(float(x) for x in pos), tuple(float(x) for x in target), fov=fov)
+
+
+def camera_view(cam: Camera, height: int, width: int, light) -> View:
+    """The kernels' view of camera ``cam`` for ``height`` x ``width`` images; ``light``: towards the light."""
+    pos, target = np.asarray(cam.position, np.float64), np.asarray(cam.target, np.float64)
+    fwd = target - pos
+    if np.linalg.norm(fwd) < 1e-9:
+        raise ValueError("camera position and target coincide")
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(cam.up, np.float64))
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError("camera up vector is parallel to the viewing direction")
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    v = View()
+    v.pos, v.forward, v.right, v.up = (wp.vec3(*x.astype(np.float32)) for x in (pos, fwd, right, up))
+    v.tan_half = math.tan(math.radians(cam.fov) / 2)
+    v.light = wp.vec3(*(np.asarray(light, np.float32) / np.linalg.norm(light)))
+    v.height, v.width = height, width
+    return v
 
 
 def _link_capsules(pts: list[tuple[np.ndarray, float]]) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -211,7 +251,7 @@ class Renderer:
         sc.sdf_cell = float(scene.object_sdf_cell)
         sc.floor_z, sc.tile = float(floor_z), float(tile)
         self._scene = sc
-        self._view = self._make_view(light)
+        self._view = camera_view(self.camera, self.height, self.width, light)
         self._no_labels = wp.zeros((1, 1), dtype=wp.uint8, device=self.device)
         npix = self.height * self.width
         self._background = (wp.empty(npix, dtype=wp.vec3, device=self.device),
@@ -221,25 +261,6 @@ class Renderer:
         wp.launch(background_kernel, dim=npix, inputs=[self._scene, self._view], outputs=list(self._background),
                   device=self.device)
         self._num_segments, self._segs = len(r), None
-
-    def _make_view(self, light) -> View:
-        cam = self.camera
-        pos, target = np.asarray(cam.position, np.float64), np.asarray(cam.target, np.float64)
-        fwd = target - pos
-        if np.linalg.norm(fwd) < 1e-9:
-            raise ValueError("camera position and target coincide")
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, np.asarray(cam.up, np.float64))
-        if np.linalg.norm(right) < 1e-9:
-            raise ValueError("camera up vector is parallel to the viewing direction")
-        right /= np.linalg.norm(right)
-        up = np.cross(right, fwd)
-        v = View()
-        v.pos, v.forward, v.right, v.up = (wp.vec3(*x.astype(np.float32)) for x in (pos, fwd, right, up))
-        v.tan_half = math.tan(math.radians(cam.fov) / 2)
-        v.light = wp.vec3(*(np.asarray(light, np.float32) / np.linalg.norm(light)))
-        v.height, v.width = self.height, self.width
-        return v
 
     def render(self, body_pose: torch.Tensor, labels: bool = False):
         """Images ``uint8 [N, H, W, 3]`` of body poses ``[N, B, 7]`` (any float dtype, no gradient);

@@ -1,0 +1,128 @@
+"""Warp code of the mesh ray caster in :mod:`.mesh_render`: the scene struct and its kernels.
+
+Forward only (the module is built without adjoints). Every drawn body is one :class:`warp.Mesh` in its own
+frame (built once; its BVH never changes); a pixel's ray is moved into each body's frame and traced against
+its mesh (``wp.mesh_query_ray``), after a cheap test against the body's bounding sphere. The kernels are
+shared by every scene: the body count and the table are runtime values, so nothing is specialised per scene.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .render_kernels import View, shade
+
+__all__ = ["LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL", "MeshScene", "mesh_background_kernel",
+           "place_bodies", "mesh_render_kernel"]
+
+wp.set_module_options({"enable_backward": False})
+
+LABEL_SKY, LABEL_TABLE = 0, 1
+FIRST_BODY_LABEL = 2  # drawn body k has label FIRST_BODY_LABEL + k
+
+
+@wp.struct
+class MeshScene:
+    mesh: wp.array(dtype=wp.uint64)  # [K] one mesh per drawn body, in that body's frame
+    body: wp.array(dtype=int)  # [K] its row of body_pose, -1 for a body that never moves (world frame)
+    centre: wp.array(dtype=wp.vec3)  # [K] bounding sphere in the body frame (m)
+    radius: wp.array(dtype=float)
+    face_start: wp.array(dtype=int)  # [K] first row of face_color of body k
+    face_color: wp.array(dtype=wp.vec3)  # [sum of faces] linear RGB in [0, 1]
+    num_drawn: int
+    has_table: int
+    table_z: float  # the table's top surface and its extent in x and y (m)
+    table_lo: wp.vec2
+    table_hi: wp.vec2
+    table_color: wp.vec3
+    tile: float  # checker tiles on the table (m): its motion and scale are readable in the image
+
+
+@wp.kernel
+def mesh_background_kernel(sc: MeshScene, view: View, rays: wp.array(dtype=wp.vec3), depth: wp.array(dtype=float),
+                           color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
+    """The static part, once per camera: each pixel's ray, and the table (or the sky) behind the scene."""
+    p = wp.tid()
+    x = p % view.width
+    y = p / view.width
+    aspect = float(view.width) / float(view.height)
+    sx = (2.0 * (float(x) + 0.5) / float(view.width) - 1.0) * view.tan_half * aspect
+    sy = (1.0 - 2.0 * (float(y) + 0.5) / float(view.height)) * view.tan_half
+    rd = wp.normalize(view.forward + sx * view.right + sy * view.up)
+    rays[p] = rd
+    t = float(-1.0)
+    if sc.has_table != 0 and rd[2] < -1.0e-6:
+        t = (sc.table_z - view.pos[2]) / rd[2]
+    q = view.pos + t * rd
+    if t > 0.0 and q[0] >= sc.table_lo[0] and q[0] <= sc.table_hi[0] and q[1] >= sc.table_lo[1] \
+            and q[1] <= sc.table_hi[1]:
+        check = (int(wp.floor(q[0] / sc.tile)) + int(wp.floor(q[1] / sc.tile))) % 2
+        depth[p] = t
+        color[p] = shade(sc.table_color * (1.0 - 0.08 * float(check * check)), wp.vec3(0.0, 0.0, 1.0), view.light,
+                         0.0)
+        label[p] = wp.uint8(LABEL_TABLE)
+    else:
+        sky = wp.clamp(0.5 + 0.5 * rd[2], 0.0, 1.0)
+        depth[p] = 1.0e30
+        color[p] = wp.lerp(wp.vec3(0.75, 0.8, 0.85), wp.vec3(0.45, 0.6, 0.8), sky)
+        label[p] = wp.uint8(LABEL_SKY)
+
+
+@wp.kernel
+def place_bodies(sc: MeshScene, pose: wp.array3d(dtype=float), inv_xform: wp.array2d(dtype=wp.transform),
+                 bound: wp.array2d(dtype=wp.vec4)):
+    """Each drawn body's world-to-body transform and world bounding sphere, thread = (world, drawn body)."""
+    w, k = wp.tid()
+    b = sc.body[k]
+    tf = wp.transform_identity()
+    if b >= 0:
+        tf = wp.transform(wp.vec3(pose[w, b, 0], pose[w, b, 1], pose[w, b, 2]),
+                          wp.quat(pose[w, b, 4], pose[w, b, 5], pose[w, b, 6], pose[w, b, 3]))
+    inv_xform[w, k] = wp.transform_inverse(tf)
+    c = wp.transform_point(tf, sc.centre[k])
+    bound[w, k] = wp.vec4(c[0], c[1], c[2], sc.radius[k])
+
+
+@wp.kernel
+def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp.transform),
+                       bound: wp.array2d(dtype=wp.vec4), rays: wp.array(dtype=wp.vec3),
+                       bg_depth: wp.array(dtype=float), bg_color: wp.array(dtype=wp.vec3),
+                       bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
+                       labels: wp.array2d(dtype=wp.uint8), write_labels: int):
+    """One pixel of one world: thread p0 + tid = world * (height * width) + pixel."""
+    pid = p0 + wp.tid()
+    npix = view.width * view.height
+    w = pid / npix
+    p = pid - w * npix
+    ro = view.pos
+    rd = rays[p]
+    best = bg_depth[p]
+    hit_body = int(-1)
+    normal = wp.vec3(0.0, 0.0, 1.0)
+    albedo = wp.vec3(0.0)
+    for k in range(sc.num_drawn):
+        sb = bound[w, k]
+        oc = ro - wp.vec3(sb[0], sb[1], sb[2])
+        bb = wp.dot(oc, rd)
+        h = bb * bb - (wp.dot(oc, oc) - sb[3] * sb[3])
+        # the ray meets the bounding sphere in front of the camera, nearer than what is hit so far
+        if h >= 0.0 and -bb + wp.sqrt(h) > 0.0 and -bb - wp.sqrt(h) < best:
+            inv = inv_xform[w, k]
+            q = wp.mesh_query_ray(sc.mesh[k], wp.transform_point(inv, ro), wp.transform_vector(inv, rd), best)
+            if q.result and q.t > 0.0 and q.t < best:
+                best = q.t
+                hit_body = k
+                normal = wp.quat_rotate_inv(wp.transform_get_rotation(inv), q.normal)
+                albedo = sc.face_color[sc.face_start[k] + q.face]
+    color = bg_color[p]
+    if hit_body >= 0:
+        if wp.dot(normal, rd) > 0.0:  # the face seen from behind (an open or thin mesh): light its other side
+            normal = -normal
+        color = shade(albedo, normal, view.light, 0.5)
+    for c in range(3):
+        image[w, p, c] = wp.uint8(int(wp.clamp(color[c], 0.0, 1.0) * 255.0 + 0.5))
+    if write_labels != 0:
+        if hit_body < 0:
+            labels[w, p] = bg_label[p]
+        else:
+            labels[w, p] = wp.uint8(FIRST_BODY_LABEL + hit_body)
