@@ -109,3 +109,57 @@ def test_the_mixed_budget_warning_works_per_task():
     assert "the finished runs of b (2) had different budgets within the task" in text
     one = {"a": budgets["a"], "b": budgets["a"]}  # one budget for all tasks: any difference warns, as before
     assert "had 2 different budgets" in budget_text(one, [_row("a", 100), _row("b", 200)])
+
+
+# The suite preset's sizing model (configs/table/preset/suite.yaml gives the measurements behind each figure):
+# seconds on one core of the 2-core machine, n_jobs=2 runs at once.
+STARTUP_S = 10            # process start, imports, env and policy construction
+FINAL_EVAL_S = {"screw_claw": 3, "allegro_rotate": 5, "repose_cube": 8}  # 100 episodes; tool tasks: TOOL_EVAL_S
+TOOL_EVAL_S = 6
+CURVE_EVALS = 15          # periodic evaluations per trained run (eval.every: ~10-20 within a budget)
+MPC_S_PER_EPISODE_CANDIDATE = {"screw_claw": 0.1, "allegro_rotate": 0.3, "repose_cube": 1.65}  # tools: TOOL_MPC_S
+TOOL_MPC_S = 1.5
+SUITE_HOURS = 8.0
+
+
+def _run_seconds(identity: dict) -> float:
+    """One run's wall-clock by the sizing model, from its composed dexmots-train config."""
+    task, algo, ev = identity["task"]["name"], identity["algo"], identity["eval"]
+    if algo["name"] == "mpc":  # trains nothing: plans through its evaluation episodes, cost ~ worlds x candidates
+        return STARTUP_S + MPC_S_PER_EPISODE_CANDIDATE.get(task, TOOL_MPC_S) * ev["episodes"] * algo["candidates"]
+    final = FINAL_EVAL_S.get(task, TOOL_EVAL_S) * ev["episodes"] / 100
+    curve = CURVE_EVALS * FINAL_EVAL_S.get(task, TOOL_EVAL_S) * (ev["curve_episodes"] or ev["episodes"]) / 100
+    return identity["budget"]["wall_clock_s"] + STARTUP_S + final + curve
+
+
+def test_the_suite_preset_is_valid_and_fits_its_hours(tmp_path):
+    from dexmots_rl import envs
+    from dexmots_rl.algorithms.registry import list_algorithms
+    from dexmots_rl.algorithms.validation import validate_run_config
+    from dexmots_rl.apps.table_spec import run_identity, sweep_spec
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR / "table"), version_base="1.3"):
+        cfg = compose("config", overrides=["preset=suite", f"sweep_dir={tmp_path / 'suite'}"])
+    registered = envs.list_tasks()
+    spec = sweep_spec(cfg, list_algorithms(), registered, {t: envs.task_config(t).action for t in registered})
+    assert spec.tasks == tuple(cfg.paper_tasks) and not spec.notes  # every paper and tool task, all registered
+    assert [m.name for m in spec.methods] == list(cfg.method_catalog)  # every method, each algo exists
+    assert spec.seeds == (0, 1, 2) and cfg.n_jobs == 2 and spec.ablation_tasks == ("screw_claw",)  # and Fig. 3b
+    assert set(spec.task_budgets) == set(spec.tasks)  # a stated budget per task, wall-clock (sized for 2 cores)
+    assert all(b["wall_clock_s"] > 0 and b["env_steps"] is None for b in spec.task_budgets.values())
+    runs = spec.runs(threads=1)
+    assert sum(r.experiment == "table" for r in runs) == len(spec.tasks) * len(spec.methods) * 3
+    loader, master = table._train_multirun_config(cfg, spec.sweep_dir)
+    seconds = 0.0
+    for run in runs:
+        if run.seed != 0:  # the seeds' configs differ in the seed alone: composed once, counted for each
+            continue
+        composed = loader.load_sweep_config(master, list(run.overrides))
+        validate_run_config(composed)
+        identity = run_identity(composed)
+        assert identity["eval"]["episodes"] == 100
+        assert run.algo != "mpc" or identity["algo"]["horizon"] == 30  # the horizon MPC's rates were measured at
+        assert identity["budget"]["wall_clock_s"] == spec.task_budgets[run.task]["wall_clock_s"]
+        seconds += len(spec.seeds) * _run_seconds(identity)
+    hours = seconds / cfg.n_jobs / 3600
+    assert 0.8 * SUITE_HOURS <= hours <= SUITE_HOURS, f"the suite is sized at {hours:.2f} h"
