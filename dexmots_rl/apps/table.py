@@ -2,6 +2,7 @@
 seeds as a hydra multirun of ``dexmots-train`` runs, then the table and the plots.
 
     dexmots-table                                        # preset=small: screw_claw + allegro_rotate, 3 seeds
+    dexmots-table preset=suite                           # every paper and tool task, every method (2 cores, ~8 h)
     dexmots-table preset=paper launcher=submitit_slurm +launcher_params.partition=gpu +launcher_params.timeout_min=60
     dexmots-table seeds=[0] tasks=[screw_claw] methods=[dexmots,ppo] budget.wall_clock_s=30
     dexmots-table 'method_overrides.ppo=["algo.total_frames=64","algo.frames_per_batch=32"]'   # per-method overrides
@@ -19,9 +20,10 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    the same number of simulator threads (``DEXMOTS_CPU_THREADS``), by default cores // n_jobs, so parallel
    runs do not oversubscribe the cores (one thread per run changes float reduction order:
    configs/config.yaml, ``torch_threads``). An unfinished run restarts from scratch (``overwrite=true``).
-3. Every run has the same ``budget`` (``budget.wall_clock_s`` of training, evaluations excluded, and/or
-   ``budget.env_steps``: :mod:`dexmots_rl.algorithms.budget`) and the same final evaluation
-   (``eval.episodes`` deterministic episodes, success = the task's threshold at the episode end); the
+3. Every run of a task has the same budget, ``budget`` or the task's ``task_budgets`` entry
+   (``wall_clock_s`` of training, evaluations excluded, and/or ``env_steps``:
+   :mod:`dexmots_rl.algorithms.budget`; table.md states it, per task when the tasks' differ) and the same
+   final evaluation (``eval.episodes`` deterministic episodes, success = the task's threshold at the episode end); the
    learning curves come from periodic evaluations (``eval.every`` per method in the preset,
    ``eval.curve_episodes`` episodes each).
 4. Outputs in ``sweep_dir``: ``runs.csv`` (one row per run), ``table.md`` (Table 2's layout and the time to
@@ -43,7 +45,6 @@ import sys
 import threading
 from pathlib import Path
 
-from .table_writer import NO_TRAINING
 
 __all__ = ["main", "run_table", "train_job"]
 
@@ -201,32 +202,12 @@ def _launch(loader, master, runs) -> dict[str, str]:
     return failures
 
 
-def _budget_text(budget: dict, rows: list[dict]) -> str:
-    parts = []
-    if budget.get("wall_clock_s") is not None:
-        parts.append(f"{budget['wall_clock_s']:g} s of training wall-clock (evaluations excluded)")
-    if budget.get("env_steps") is not None:
-        parts.append(f"{budget['env_steps']:,} env steps")
-    text = ("Budget per run: " + " or ".join(parts) + " (or the method's own schedule, if it ends first)" if parts else
-            "Budget per run: none (each method's own schedule: algo.iterations / algo.total_frames)")
-    stops = {}
-    for r in rows:
-        if r["status"] == "finished":
-            stops[r["stopped_by"] or "unknown"] = stops.get(r["stopped_by"] or "unknown", 0) + 1
-    if stops:
-        text += "; runs stopped by " + ", ".join(f"{k} ({n})" for k, n in sorted(stops.items()))
-    budgets = {(r["budget_wall_clock_s"], r["budget_env_steps"]) for r in rows
-               if r["status"] == "finished" and r["stopped_by"] != NO_TRAINING}  # a planner has no training budget
-    if len(budgets) > 1:
-        text += (f". **Warning: the finished runs had {len(budgets)} different budgets** (runs.csv: "
-                 "budget_wall_clock_s, budget_env_steps); remove the odd ones' directories and rerun")
-    return text + "."
-
-
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_writer import markdown_table, time_to_success_table
+    from .table_writer import budget_cell, budget_text, markdown_table, time_to_success_table
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
+    budgets = {t: spec.budget_of(t) for t in spec.tasks}
+    per_task = len({budget_cell(b) for b in budgets.values()}) > 1  # then a Budget column states each
     methods = [(m.name, m.label) for m in spec.methods]
     table_rows = [r for r in rows if r["experiment"] == "table"]
     episodes = sorted({r["episodes"] for r in table_rows if r["episodes"] is not None})
@@ -234,8 +215,9 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
         str(episodes[0]) if episodes else "the")
     lines = [f"# dexmots-table: {spec.sweep_dir.name}", "",
              f"Success rate (% of {ep_text} evaluation episodes, success: the task's threshold at the episode end), "
-             f"mean ± s.d. over seeds {', '.join(map(str, spec.seeds))}. {_budget_text(spec.budget, table_rows)}",
-             "", markdown_table(table_rows, tasks, methods, seeds=len(spec.seeds)), "",
+             f"mean ± s.d. over seeds {', '.join(map(str, spec.seeds))}. {budget_text(budgets, table_rows)}",
+             "", markdown_table(table_rows, tasks, methods, seeds=len(spec.seeds),
+                                budgets={t: budget_cell(b) for t, b in budgets.items()} if per_task else None), "",
              "Training wall-clock to 90 % success (mean over the runs that reached it, from the periodic and final "
              "evaluations; (reached/finished runs)):", "", time_to_success_table(table_rows, tasks, methods), ""]
     if outputs:

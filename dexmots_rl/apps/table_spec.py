@@ -15,6 +15,10 @@ action-space run with a task's default action is the table's run itself.
 ``dexmots-train`` has (what was left out is noted in table.md); a name given explicitly must exist, or the
 spec fails with a :class:`SweepSpecError` naming the field and the name.
 
+Every method of a task trains under the same budget: ``budget``, or the task's own entry of ``task_budgets``
+(its whole budget: ``{wall_clock_s, env_steps}``, a key not given is null). The budget is among a run's
+overrides, so it is part of the run's identity: a changed budget runs that task's runs again.
+
 Example:
     >>> from omegaconf import OmegaConf
     >>> cfg = OmegaConf.create({"tasks": ["screw_claw"], "methods": ["dexmots"], "seeds": [],
@@ -103,9 +107,15 @@ class SweepSpec:
     task_overrides: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     method_overrides: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    #: task -> its own budget (``{"wall_clock_s", "env_steps"}``), replacing ``budget`` for every method of it
+    task_budgets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def method(self, name: str) -> Method:
         return next(m for m in self.methods if m.name == name)
+
+    def budget_of(self, task: str) -> Mapping[str, Any]:
+        """The training budget of every run of ``task``: its ``task_budgets`` entry, else ``budget``."""
+        return self.task_budgets.get(task, self.budget)
 
     def runs(self, threads: int | None = None) -> list[Run]:
         """Every run, the table's first (task, method, seed order), then the action-space runs not already
@@ -123,12 +133,12 @@ class SweepSpec:
         return [self._run(*k, threads) for k in keys]
 
     def _run(self, task, method_name, action, seed, experiment, threads) -> Run:
-        method = self.method(method_name)
+        method, budget = self.method(method_name), self.budget_of(task)
         run_dir = (self.sweep_dir / "runs" / task / method_name / action / f"seed{seed}").resolve()
         table_keys = [f"task={task}", f"seed={seed}", f"task.action={action}", f"run_dir={_quoted(run_dir)}",
                       "overwrite=true", "progress=false",  # an unfinished run restarts; the table has the bar
-                      f"budget.wall_clock_s={_value(self.budget.get('wall_clock_s'))}",
-                      f"budget.env_steps={_value(self.budget.get('env_steps'))}",
+                      f"budget.wall_clock_s={_value(budget.get('wall_clock_s'))}",
+                      f"budget.env_steps={_value(budget.get('env_steps'))}",
                       f"hydra.sweep.subdir={_quoted(run_dir.relative_to(self.sweep_dir.resolve()))}"]
         if threads is not None:
             table_keys.append(f"torch_threads={threads}")
@@ -224,6 +234,33 @@ def _per_name(value, field_name: str, known: Sequence[str], what: str) -> dict[s
     return {name: _override_list(v, f"{field_name}.{name}") for name, v in value.items()}
 
 
+def _budget(value, field_name: str) -> dict[str, Any]:
+    """``{"wall_clock_s", "env_steps"}`` from a budget mapping, each null or positive (a key not given: null)."""
+    if not isinstance(value, dict) or set(value) - {"wall_clock_s", "env_steps"}:
+        raise SweepSpecError(f"{field_name} takes wall_clock_s and env_steps, got {value!r}")
+    for key, ok in (("wall_clock_s", lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v > 0),
+                    ("env_steps", lambda v: isinstance(v, int) and v > 0)):
+        v = value.get(key)
+        if v is not None and (isinstance(v, bool) or not ok(v)):
+            raise SweepSpecError(f"{field_name}.{key} must be null or a positive number, got {v!r}")
+    return {"wall_clock_s": value.get("wall_clock_s"), "env_steps": value.get("env_steps")}
+
+
+def _task_budgets(value, known: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``task_budgets``: task name -> its whole budget; a name must be a registered or a paper task (a paper
+    task not registered yet is left out of ``tasks: all`` with its budget)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise SweepSpecError(f"task_budgets must map task names to {{wall_clock_s, env_steps}}, got {value!r}")
+    out = {}
+    for task, entry in value.items():
+        if task not in known:
+            raise SweepSpecError(f"task_budgets: unknown task {task!r}; known: {', '.join(dict.fromkeys(known))}")
+        out[task] = _budget(entry, f"task_budgets.{task}")
+    return out
+
+
 def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_actions: Mapping[str, str]) -> SweepSpec:
     """The checked spec of a ``dexmots-table`` config; ``algos``: what ``dexmots-train`` can run
     (``list_algorithms()``), ``registered``: ``list_tasks()``, ``default_actions``: each task's ``task.action``."""
@@ -243,14 +280,8 @@ def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_act
     if (not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds)
             or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
         raise SweepSpecError(f"seeds must be a non-empty list of distinct non-negative integers, got {seeds!r}")
-    budget = c.get("budget") or {}
-    if not isinstance(budget, dict) or set(budget) - {"wall_clock_s", "env_steps"}:
-        raise SweepSpecError(f"budget takes wall_clock_s and env_steps, got {budget!r}")
-    for key, ok in (("wall_clock_s", lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v > 0),
-                    ("env_steps", lambda v: isinstance(v, int) and v > 0)):
-        v = budget.get(key)
-        if v is not None and (isinstance(v, bool) or not ok(v)):
-            raise SweepSpecError(f"budget.{key} must be null or a positive number, got {v!r}")
+    budget = _budget(c.get("budget") or {}, "budget")
+    task_budgets = _task_budgets(c.get("task_budgets"), [*registered, *(c.get("paper_tasks") or [])])
     ablation = c.get("action_ablation") or {}
     if not isinstance(ablation, dict) or set(ablation) - {"tasks", "methods", "actions"}:
         raise SweepSpecError(f"action_ablation takes tasks, methods and actions, got {ablation!r}")
@@ -271,7 +302,7 @@ def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_act
         tasks=tuple(tasks), methods=tuple(catalog[m] for m in methods), seeds=tuple(seeds),
         ablation_tasks=tuple(ab_tasks), ablation_methods=tuple(ab_methods), actions=tuple(actions),
         default_actions={t: default_actions[t] for t in {*tasks, *ab_tasks}},
-        budget={"wall_clock_s": budget.get("wall_clock_s"), "env_steps": budget.get("env_steps")},
+        budget=budget, task_budgets={t: b for t, b in task_budgets.items() if t in {*tasks, *ab_tasks}},
         sweep_dir=Path(str(c["sweep_dir"])),
         task_labels={t: (c.get("task_labels") or {}).get(t, t) for t in {*tasks, *ab_tasks}},
         run_overrides=_override_list(c.get("run_overrides"), "run_overrides"),

@@ -7,7 +7,10 @@ tables built from those rows alone, so a CSV can be rendered again (or tested) w
 * :func:`time_to_success` — the first point of a curve at or above a success rate (90 %).
 * :func:`run_row`, :func:`write_csv`, :func:`read_csv` — ``runs.csv`` (:data:`CSV_FIELDS`).
 * :func:`markdown_table` — Table 2's layout: tasks as rows, methods as columns, success in % as
-  mean ± sample s.d. over seeds, and an Average row (mean of the task means ± mean of their s.d., as the paper).
+  mean ± sample s.d. over seeds, and an Average row (mean of the task means ± mean of their s.d., as the paper);
+  a Budget column when the tasks' training budgets differ.
+* :func:`budget_text` — the sentence stating the training budget (one for all runs, or per task) and warning
+  when the finished runs of one comparison had different budgets.
 * :func:`time_to_success_table` — the same layout for the mean training time to 90 % success.
 
 Example:
@@ -25,11 +28,12 @@ import csv
 import json
 import statistics
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 from ..algorithms.budget import NO_TRAINING
 
-__all__ = ["CSV_FIELDS", "NO_TRAINING", "learning_curve", "markdown_table", "read_csv", "run_row", "time_to_success",
+__all__ = ["CSV_FIELDS", "NO_TRAINING", "budget_cell", "budget_text", "learning_curve",
+           "markdown_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
@@ -142,18 +146,75 @@ def _mean_sd(values: Sequence[float]) -> tuple[float, float | None]:
     return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else None)
 
 
-def _header(methods) -> list[str]:
-    return ["| Environment | " + " | ".join(label for _, label in methods) + " |",
-            "|---|" + "---:|" * len(methods)]
+def _header(methods, budget_column: bool = False) -> list[str]:
+    return ["| Environment | " + " | ".join(label for _, label in methods) + (" | Budget" if budget_column else "")
+            + " |", "|---|" + "---:|" * len(methods) + ("---|" if budget_column else "")]
+
+
+def budget_cell(budget: Mapping) -> str:
+    """A training budget in a few words: ``600 s``, ``2,000,000 env steps``, ``none``."""
+    parts = []
+    if budget.get("wall_clock_s") is not None:
+        parts.append(f"{budget['wall_clock_s']:g} s")
+    if budget.get("env_steps") is not None:
+        parts.append(f"{budget['env_steps']:,} env steps")
+    return " or ".join(parts) or "none"
+
+
+def _budget_phrase(budget: Mapping) -> str | None:
+    parts = []
+    if budget.get("wall_clock_s") is not None:
+        parts.append(f"{budget['wall_clock_s']:g} s of training wall-clock (evaluations excluded)")
+    if budget.get("env_steps") is not None:
+        parts.append(f"{budget['env_steps']:,} env steps")
+    return " or ".join(parts) if parts else None
+
+
+def budget_text(budgets: Mapping[str, Mapping], rows: Sequence[dict]) -> str:
+    """The table's budget sentence: ``budgets`` (task -> ``{wall_clock_s, env_steps}`` of every method of it)
+    when all tasks share one, else a pointer to the Budget column; how the finished ``rows`` stopped; and a
+    warning when the finished trained runs had more than one budget (per task when the tasks' budgets differ:
+    runs.csv's ``budget_wall_clock_s``, ``budget_env_steps``)."""
+    distinct = list({tuple(sorted(b.items())): b for b in budgets.values()}.values())
+    per_task = len(distinct) > 1
+    if per_task:
+        text = ("Budget per run: the same for every method of a task, stated per task (Budget column; "
+                "or the method's own schedule, if it ends first)")
+    else:
+        phrase = _budget_phrase(distinct[0]) if distinct else None
+        text = ("Budget per run: " + phrase + " (or the method's own schedule, if it ends first)" if phrase else
+                "Budget per run: none (each method's own schedule: algo.iterations / algo.total_frames)")
+    stops = {}
+    for r in rows:
+        if r["status"] == "finished":
+            stops[r["stopped_by"] or "unknown"] = stops.get(r["stopped_by"] or "unknown", 0) + 1
+    if stops:
+        text += "; runs stopped by " + ", ".join(f"{k} ({n})" for k, n in sorted(stops.items()))
+    seen: dict[str | None, set] = {}
+    for r in rows:  # a planner has no training budget
+        if r["status"] == "finished" and r["stopped_by"] != NO_TRAINING:
+            seen.setdefault(r["task"] if per_task else None, set()).add((r["budget_wall_clock_s"],
+                                                                         r["budget_env_steps"]))
+    mixed = {task: len(b) for task, b in seen.items() if len(b) > 1}
+    if mixed and not per_task:
+        text += (f". **Warning: the finished runs had {mixed[None]} different budgets** (runs.csv: "
+                 "budget_wall_clock_s, budget_env_steps); remove the odd ones' directories and rerun")
+    elif mixed:
+        text += (". **Warning: the finished runs of " + ", ".join(f"{t} ({n})" for t, n in mixed.items())
+                 + " had different budgets within the task** (runs.csv: budget_wall_clock_s, budget_env_steps); "
+                 "remove the odd ones' directories and rerun")
+    return text + "."
 
 
 def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], methods: Sequence[tuple[str, str]],
-                   seeds: int | None = None) -> str:
+                   seeds: int | None = None, budgets: Mapping[str, str] | None = None) -> str:
     """Success (% of the evaluation episodes) per task (rows, ``(name, label)`` pairs) and method (columns),
     mean ± sample s.d. over the finished ``table`` runs; a single run shows its value alone, a cell with fewer
-    runs than ``seeds`` says how many (``n=2``). The Average row (with more than one task) needs every task."""
+    runs than ``seeds`` says how many (``n=2``). The Average row (with more than one task) needs every task.
+    ``budgets``: task -> its budget's words (:func:`budget_cell`), a last column."""
     groups = _grouped(rows, "success")
-    lines = _header(methods)
+    lines = _header(methods, budgets is not None)
+    tail = (lambda task: f" | {budgets.get(task, '')}") if budgets is not None else (lambda task: "")
     stats = {}
     for task, label in tasks:
         cells = []
@@ -165,7 +226,7 @@ def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], metho
             mean, sd = stats[(task, method)] = _mean_sd(values)
             cell = f"{100 * mean:.1f}" + (f" ± {100 * sd:.1f}" if sd is not None else "")
             cells.append(cell + (f" (n={len(values)})" if seeds is not None and len(values) < seeds else ""))
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label} | " + " | ".join(cells) + tail(task) + " |")
     if len(tasks) > 1:
         cells = []
         for method, _ in methods:
@@ -176,7 +237,7 @@ def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], metho
             mean = statistics.fmean(m for m, _ in per_task)
             sds = [sd for _, sd in per_task]
             cells.append(f"{100 * mean:.1f}" + ("" if None in sds else f" ± {100 * statistics.fmean(sds):.1f}"))
-        lines.append("| Average | " + " | ".join(cells) + " |")
+        lines.append("| Average | " + " | ".join(cells) + tail(None) + " |")
     return "\n".join(lines)
 
 
