@@ -24,3 +24,14 @@ def test_the_plan_tracks_the_ramp_and_a_task_follows_it(name, joint, goal):
 def test_a_joint_that_is_not_there_is_named():
     with pytest.raises(ValueError, match="joint 'lid' is not a joint"):
         optimize_joint_torques("drawer_a", "lid", 0.0, 0.05, steps=2, iterations=1, progress=False)
+
+
+def test_dexmots_plan_writes_a_tool_tasks_plan(tmp_path):
+    """dexmots-plan on an articulated task plans its operated joint; the file is a reference the task reads."""
+    from dexmots_rl.apps.plan import main
+
+    out = tmp_path / "drawer.pt"
+    main(["--task", "drawer", "--goal", "0.03", "--steps", "3", "--iterations", "2", "--friction", "0.5", "--out",
+          str(out)])
+    env = make_env("drawer", num_envs=2, references=str(out), seed=0, raw=True, differentiable=False)
+    assert env.reference_bank.batch_size == (1, 4)

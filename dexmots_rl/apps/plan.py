@@ -2,6 +2,11 @@
 
     dexmots-plan --task screw_claw --goal 1.5708 --steps 60 --out plans/knob.pt
     dexmots-plan --task screw_claw --goal 0.8 1.2 1.5708 --friction 0.2 0.6 1.0 --out plans/bank   # one file per plan
+    dexmots-plan --task drawer --goal 0.065 --steps 40 --out plans/drawer.pt      # an articulated object's joint
+
+For a task on an articulated object (``operate`` and the tool tasks) the plan is the force on the task's
+operated joint with the base held (:func:`dexmots_rl.trajectories.joint_planner.optimize_joint_torques`);
+``--start`` / ``--goal`` are that joint's position, ``--damping`` / ``--friction`` its parameters.
 
 Prints the final tracking error (and the initial one, with zero wrenches). Writes are atomic. A bank
 directory of plans is what ``make_env(..., references=...)`` reads (see :mod:`dexmots_rl.envs`).
@@ -100,11 +105,14 @@ def _plan(args) -> None:
             scene = task_scene(args.task)
         except ValueError as e:
             raise SystemExit(f"dexmots-plan: {e}") from None
-        start, goal, params = _plan_inputs(args, scene)
-        lr = args.lr if args.lr is not None else _task_lr(args.task)
         t0 = time.perf_counter()
-        result = optimize_wrenches(scene, start, goal, args.steps, iterations=args.iterations, lr=lr,
-                                   params=params)
+        if getattr(scene, "tree", None) is not None:  # an articulated object: its operated joint
+            result = _plan_joint(args, scene)
+        else:
+            start, goal, params = _plan_inputs(args, scene)
+            lr = args.lr if args.lr is not None else _task_lr(args.task)
+            result = optimize_wrenches(scene, start, goal, args.steps, iterations=args.iterations, lr=lr,
+                                       params=params)
         wall = time.perf_counter() - t0
     out = Path(args.out)
     files = []
@@ -124,6 +132,28 @@ def _plan(args) -> None:
     else:
         print(f"wrote {len(files)} plan(s) to {out}: tracking error {result.initial_error:.4g} -> "
               f"{result.final_error:.4g} ({wall:.1f} s)")
+
+
+def _plan_joint(args, scene):
+    """The plan of an articulated task's operated joint (the task's ``joint``, or its object's operated joint)."""
+    from ..assets.objects import load_object
+    from ..envs import task_config
+    from ..trajectories.joint_planner import optimize_joint_torques
+
+    config = task_config(args.task)
+    tree = scene.tree
+    joint = config.joint or load_object(config.object).operated_joint or tree.joint_names[0]
+    j = tree.joint_names.index(joint)
+    start = args.start if args.start is not None else [float(tree.q0[7 * tree.free + j])]
+    n = max(len(args.goal), len(start), len(args.damping or [0]), len(args.friction or [0]))
+    for name, values in (("goal", args.goal), ("start", start), ("damping", args.damping or [0]),
+                         ("friction", args.friction or [0])):
+        if len(values) not in (1, n):
+            raise SystemExit(f"dexmots-plan: --{name} gives {len(values)} values; expected 1 or {n}")
+    params = {f"{joint}/{name}": torch.tensor(values, dtype=torch.float32).expand(n)
+              for name, values in (("damping", args.damping), ("friction", args.friction)) if values}
+    return optimize_joint_torques(scene, joint, torch.tensor(start).expand(n), torch.tensor(args.goal).expand(n),
+                                  args.steps, iterations=args.iterations, lr=args.lr, params=params)
 
 
 def _task_lr(task: str) -> float:
