@@ -100,6 +100,7 @@ def _plan(args) -> None:
             scene = task_scene(args.task)
         except ValueError as e:
             raise SystemExit(f"dexmots-plan: {e}") from None
+        _require_rigid_object(args.task, scene)
         start, goal, params = _plan_inputs(args, scene)
         lr = args.lr if args.lr is not None else _task_lr(args.task)
         t0 = time.perf_counter()
@@ -124,6 +125,17 @@ def _plan(args) -> None:
     else:
         print(f"wrote {len(files)} plan(s) to {out}: tracking error {result.initial_error:.4g} -> "
               f"{result.final_error:.4g} ({wall:.1f} s)")
+
+
+def _require_rigid_object(task: str, scene) -> None:
+    """One-line ``SystemExit`` for a task whose object is articulated (``operate`` and the tool tasks): the
+    wrench planner plans one hinge or free body of a :class:`~dexmots_rl.sim.SceneModel`."""
+    from ..sim import SceneModel
+
+    if not isinstance(scene, SceneModel):
+        raise SystemExit(f"dexmots-plan: --task {task!r} operates an articulated object, which this planner does "
+                         "not plan; plan its operated joint with "
+                         "dexmots_rl.trajectories.joint_planner.optimize_joint_torques")
 
 
 def _task_lr(task: str) -> float:
