@@ -101,6 +101,17 @@ def test_plan_cli_rejects_bad_values_with_one_line_and_writes_nothing(tmp_path, 
     assert not out.exists()
 
 
+def test_plan_cli_refuses_an_articulated_tool_task_with_one_line(tmp_path):
+    from dexmots_rl.apps.plan import main
+
+    out = tmp_path / "plan.pt"
+    with pytest.raises(SystemExit) as err:
+        main(["--task", "stapler", "--goal", "0.2", "--out", str(out)])
+    msg = str(err.value.code)
+    assert msg.startswith("dexmots-plan: --task 'stapler' operates an articulated object") and "\n" not in msg
+    assert "optimize_joint_torques" in msg and not out.exists()
+
+
 def test_atomic_writes_get_the_umask_default_mode(tmp_path):
     old = os.umask(0o022)
     try:
