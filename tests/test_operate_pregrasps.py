@@ -111,7 +111,7 @@ def test_a_bad_grasp_region_names_its_field(change, message):
 @pytest.mark.parametrize("argv, message", [
     (["--task", "operate"], "--task operate needs --object"),
     (["--task", "operate", "--object", "jar_a", "--all"], "--task operate needs --object"),
-    (["--task", "stapler", "--object", "jar_a"], "--object and --all are for --task operate"),
+    (["--task", "allegro_rotate"], "--task 'allegro_rotate' has no pre-grasps to search; tasks with pre-grasps: "),
 ])
 def test_dexmots_pregrasp_operate_arguments(argv, message):
     with pytest.raises(SystemExit, match=message):

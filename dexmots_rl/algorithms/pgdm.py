@@ -24,9 +24,10 @@ What PGDM changes (everything else, the evaluation included, is the task's and P
   reference is exactly ``|θ - θ̄|`` (the norm over the joints for several). The lift bonus (reference and
   object both ≥ 2 cm above the reference's start height) and the early termination (object ≥ 0.25 m from
   its reference) only exist for free objects.
-* **Start**: nothing changes. The operable objects (spray_bottle, scissors, stapler) start from their
-  pre-grasps (``task.initial="pregrasp"``), the knob tasks from their grasp (``task.initial="grasp"``): the
-  starts DexMOTS uses (the paper gives PGDM DexMOTS's grasp and no CEM step).
+* **Start**: nothing changes. The tool tasks (spray_bottle, scissors, stapler, ...: library objects free on
+  the table) start from their object's pre-grasps (``task.initial="pregrasp"``), the knob tasks from their
+  grasp (``task.initial="grasp"``): the starts DexMOTS uses (the paper gives PGDM DexMOTS's grasp and no CEM
+  step).
 * **Warm start** (:func:`warm_start_actor`): the actor's output bias makes the initial mean action the one
   whose joint targets are the mean start pose (``position`` / ``vi``; the ``vi`` stiffness half at 0, the
   geometric mean of its range), log σ₀ = ``algo.init_log_std`` = -1.6. The start pose is the mean of the

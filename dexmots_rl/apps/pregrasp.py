@@ -1,6 +1,6 @@
 """``dexmots-pregrasp``: find a task's pre-grasps through the simulator and write them to a pre-grasp file.
 
-    dexmots-pregrasp --task stapler                    # ./stapler.json
+    dexmots-pregrasp --task stapler                    # ./stapler_a.json (the stapler task's object)
     dexmots-pregrasp --task scissors --candidates 16 --keep 8 --out my_scissors.json
     dexmots-train task=scissors task.pregrasps=my_scissors.json     # train from those pre-grasps
     dexmots-pregrasp --task operate --object jar_a                  # ./jar_a.json
@@ -8,12 +8,12 @@
     dexmots-train task=operate task.object=my/mobility.urdf task.pregrasps=mine.json
     dexmots-pregrasp --task operate --all --out dexmots_rl/assets/pregrasps/operate   # the shipped files
 
-The file goes where ``--out`` says (a file, or a directory for ``<task>.json``, or ``<object>.json`` for task
-``operate``; default: the current directory), never into the installed package unless ``--out`` names it; a
-task uses it through its ``task.pregrasps`` field. Task ``operate`` needs ``--object`` (a library object or a
-URDF; :func:`dexmots_rl.envs.object_pregrasp.find_object_pregrasps`) or ``--all`` (every library object); a
-task built on it (``drawer``, ``jar``, ...) searches its own object (``--object`` picks another).
-Deterministic for a seed (:func:`dexmots_rl.envs.pregrasp.find_pregrasps`); the file is written atomically.
+The file goes where ``--out`` says (a file, or a directory for ``<object>.json``; default: the current
+directory), never into the installed package unless ``--out`` names it; a task uses it through its
+``task.pregrasps`` field. Task ``operate`` needs ``--object`` (a library object or a URDF;
+:func:`dexmots_rl.envs.object_pregrasp.find_object_pregrasps`) or ``--all`` (every library object); a tool task
+built on it (``spray_bottle``, ``drawer``, ``jar``, ...) searches its own object (``--object`` picks another).
+Other tasks start without pre-grasps. Deterministic for a seed; the file is written atomically.
 """
 
 from __future__ import annotations
@@ -25,31 +25,14 @@ from pathlib import Path
 
 from ._cli import os_errors_as_one_line
 
-__all__ = ["generate", "generate_operate", "main", "output_path"]
+__all__ = ["generate_operate", "main", "output_path"]
 
 
-def output_path(task: str, out=None) -> Path:
-    """Where ``--out`` puts ``task``'s file: ``out`` itself, ``out/<task>.json`` for a directory, or
-    ``./<task>.json``."""
+def output_path(name: str, out=None) -> Path:
+    """Where ``--out`` puts the file of object ``name``: ``out`` itself, ``out/<name>.json`` for a directory,
+    or ``./<name>.json``."""
     path = Path.cwd() if out is None else Path(out).expanduser()
-    return path / f"{task}.json" if path.is_dir() else path
-
-
-def generate(task: str, candidates: int = 8, keep: int = 4, seed: int = 0, out=None) -> Path:
-    """Search ``task``'s pre-grasps and write them to :func:`output_path` ``(task, out)``; returns the path."""
-    from ..envs import list_tasks
-    from ..envs.pregrasp import find_pregrasps, save_pregrasps
-    from ..envs.registry import task_entry
-
-    if task not in list_tasks() or not getattr(task_entry(task).env_class, "contact_regions", ()):
-        known = [t for t in list_tasks() if getattr(task_entry(t).env_class, "contact_regions", ())]
-        raise ValueError(f"--task {task!r} has no pre-grasp regions; tasks with pre-grasps: {', '.join(known)}")
-    env_class = task_entry(task).env_class
-    poses = find_pregrasps(env_class.asset_path(), env_class.contact_regions, env_class.pregrasp_hint,
-                           candidates=candidates, keep=keep, seed=seed, contact=env_class.contact_params)
-    path = output_path(task, out)
-    save_pregrasps(path, task, poses, seed)
-    return path
+    return path / f"{name}.json" if path.is_dir() else path
 
 
 def generate_operate(object_name: str, candidates: int = 8, keep: int = 4, seed: int = 0, out=None) -> Path:
@@ -72,13 +55,13 @@ def generate_operate(object_name: str, candidates: int = 8, keep: int = 4, seed:
     return path
 
 
-def _operates_objects(task: str) -> bool:
-    """Whether ``task`` is ``operate`` or a task built on it (a tool task: its object's pre-grasps)."""
+def _object_tasks() -> list[str]:
+    """The tasks with pre-grasps: ``operate`` and the tasks built on it (a tool task: its object's)."""
     from ..envs import list_tasks
     from ..envs.registry import task_entry
     from ..envs.tasks.allegro.operate_object import OperateObjectEnv
 
-    return task in list_tasks() and issubclass(task_entry(task).env_class, OperateObjectEnv)
+    return [t for t in list_tasks() if issubclass(task_entry(t).env_class, OperateObjectEnv)]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -90,8 +73,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--candidates", type=int, default=8, help="IK + settle candidates tried")
     p.add_argument("--keep", type=int, default=4, help="pre-grasps kept (the first that pass the contact check)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=None, help="JSON file, or a directory for <task>.json (default: the current "
-                                               "directory)")
+    p.add_argument("--out", default=None, help="JSON file, or a directory for <object>.json (default: the "
+                                               "current directory)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     from ..envs.pregrasp import PregraspError
@@ -99,12 +82,13 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("candidates", "keep"):
         if getattr(args, name) < 1:
             raise SystemExit(f"dexmots-pregrasp: --{name} must be >= 1, got {getattr(args, name)}")
-    on_objects = _operates_objects(args.task)
+    known = _object_tasks()
+    if args.task not in known:
+        raise SystemExit(f"dexmots-pregrasp: --task {args.task!r} has no pre-grasps to search; tasks with "
+                         f"pre-grasps: {', '.join(known)}")
     if args.task == "operate" and (args.object is None) == (not args.all):
         raise SystemExit("dexmots-pregrasp: --task operate needs --object <name or .urdf path> or --all")
-    if not on_objects and (args.object is not None or args.all):
-        raise SystemExit(f"dexmots-pregrasp: --object and --all are for --task operate, not {args.task!r}")
-    if on_objects and args.object is None and not args.all:  # a tool task: its own object
+    if args.object is None and not args.all:  # a tool task: its own object
         from ..envs.registry import task_config
 
         args.object = task_config(args.task).object
@@ -116,8 +100,7 @@ def main(argv: list[str] | None = None) -> None:
     with os_errors_as_one_line("dexmots-pregrasp"):
         try:
             for name in objects:
-                path = (generate(args.task, args.candidates, args.keep, args.seed, args.out) if name is None else
-                        generate_operate(name, args.candidates, args.keep, args.seed, args.out))
+                path = generate_operate(name, args.candidates, args.keep, args.seed, args.out)
                 print(path, flush=True)
         except (ValueError, PregraspError) as e:
             raise SystemExit(f"dexmots-pregrasp: {e}") from None

@@ -1,42 +1,24 @@
-"""Pre-grasps found through the simulator: hand poses that touch an object where a task needs it.
+"""Pre-grasp files and the inverse kinematics the pre-grasp search shares.
 
-Our stand-in for the paper's DexGraspNet samples. A task names, per finger, a region on one of the
-scene's box geoms (:class:`ContactRegion`: a point on a face, the face's outward normal and how far the
-point may move on the face). :func:`find_pregrasps` then, per candidate:
-
-1. draws a target point in every region (seeded) and puts the fingertip sphere's centre one radius out
-   along the normal, ``squeeze`` metres deeper (a light squeeze);
-2. solves each finger's inverse kinematics to it (damped least squares on MuJoCo's site Jacobian,
-   clamped to the joint limits), the unassigned fingers staying at the task's hint pose;
-3. settles the hand in *our* simulator: every world holds its IK pose with a stiff PD drive for
-   ``settle_steps`` env steps, the object's part held at rest, so contact pushes penetrating links out
-   and the squeeze becomes a contact force;
-4. keeps the candidate only if MuJoCo's geometry (an independent check: ``mj_geomDistance``) says every
-   assigned fingertip is within ``touch_tolerance`` of its geom and no hand geom penetrates any object
-   geom by more than ``max_penetration``. (Our penalty contact is smooth: at the Allegro tasks'
-   sharpness of 1000 /m and 2 mm surface smoothing it still pushes ~0.3 N at a 3 mm gap, so a fingertip
-   that presses lightly rests 2-4 mm out in exact geometry: the default tolerance is 5 mm.)
-
-The poses are stored per task in a JSON file (format, task, seed, poses; written atomically): the package
-ships one per task (``assets/pregrasps/<task>.json``); ``dexmots-pregrasp --task <name>`` writes a new one
-where the user says, deterministically for a seed, and a task uses it with ``task.pregrasps=<file>``. A file
-is read, and checked whole (:func:`load_pregrasps`), when its task's env is built.
-Tasks with ``initial="pregrasp"`` draw one of these per episode (:class:`~.tasks.allegro.operate.OperateEnv`).
-The articulated objects of task ``operate`` describe their own regions and are searched by
-:mod:`.object_pregrasp`, into the same file format (with the ``object`` it belongs to).
+A pre-grasp is a hand pose that touches an object where a task needs it (our stand-in for the paper's
+DexGraspNet samples). :mod:`.object_pregrasp` finds them for the articulated objects of task ``operate`` and
+the tool tasks built on it (fingertip inverse kinematics with :func:`_solve_ik`, settled in our simulator,
+checked in MuJoCo's geometry). They are stored per object in a JSON file (format, task, object, seed, poses;
+written atomically by :func:`save_pregrasps`): the package ships one per library object
+(``assets/pregrasps/operate/<object>.json``); ``dexmots-pregrasp`` writes a new one where the user says,
+deterministically for a seed, and a task uses it with ``task.pregrasps=<file>``. A file is read, and checked
+whole (:func:`load_pregrasps`), when its task's env is built.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ContactRegion", "PregraspError", "find_pregrasps", "check_pregrasp", "load_pregrasps",
-           "save_pregrasps", "pregrasp_path"]
+__all__ = ["PregraspError", "load_pregrasps", "save_pregrasps"]
 
 log = logging.getLogger(__name__)
 
@@ -45,26 +27,6 @@ FORMAT = "dexmots-pregrasps-v1"
 
 class PregraspError(ValueError):
     """No valid pre-grasp was found, or a pre-grasp file is missing or malformed."""
-
-
-@dataclasses.dataclass(frozen=True)
-class ContactRegion:
-    """Where finger ``finger`` (index into the scene's fingers) should touch: geom ``geom`` (a box), at
-    ``point`` on its face with outward ``normal`` (both in the geom's frame, m), moved up to ``spread``
-    (m, along the geom frame's axes) by the candidates."""
-
-    finger: int
-    geom: str
-    point: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    spread: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-def pregrasp_path(task: str) -> Path:
-    """The shipped pre-grasp file of ``task``."""
-    from ..assets import ASSET_DIR
-
-    return ASSET_DIR / "pregrasps" / f"{task}.json"
 
 
 def _finger_sites(model, scene) -> list[tuple[int, list[int], int]]:
@@ -100,106 +62,6 @@ def _solve_ik(model, data, q, site: int, qidx: list[int], target: np.ndarray, it
         j = jac[:, qidx]
         step = j.T @ np.linalg.solve(j @ j.T + 1e-4 * np.eye(3), err)
         q[qidx] = np.clip(q[qidx] + np.clip(step, -0.2, 0.2), lo, hi)
-
-
-def check_pregrasp(scene_path, q_hand, regions, touch_tolerance: float = 0.005,
-                   max_penetration: float = 0.003) -> tuple[bool, dict]:
-    """MuJoCo's verdict on one pre-grasp: ``(ok, details)`` with every assigned fingertip's distance to its
-    geom (m, negative: penetrating) and the deepest penetration of any hand geom into any object geom."""
-    import mujoco
-
-    from ..sim import load_scene
-
-    model = mujoco.MjModel.from_xml_path(str(scene_path))
-    return _check(model, mujoco.MjData(model), load_scene(scene_path), q_hand, regions, touch_tolerance,
-                  max_penetration)
-
-
-def _check(model, data, scene, q_hand, regions, touch_tolerance: float = 0.005,
-           max_penetration: float = 0.003) -> tuple[bool, dict]:
-    """:func:`check_pregrasp` on an already compiled model (``data`` is overwritten)."""
-    import mujoco
-
-    data.qpos[:] = model.qpos0
-    data.qpos[:scene.num_hand_dofs] = q_hand
-    mujoco.mj_forward(model, data)
-    sites = _finger_sites(model, scene)
-    body = {mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in ("object", "object_base")}
-    object_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in body]
-    hand_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] not in body and model.geom_contype[g]]
-    fromto = np.zeros(6)
-    tips = {}
-    for r in regions:
-        g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, r.geom)
-        tips[scene.finger_names[r.finger]] = float(mujoco.mj_geomDistance(model, data, sites[r.finger][2], g, 0.1,
-                                                                          fromto))
-    deepest = min(float(mujoco.mj_geomDistance(model, data, h, o, 0.05, fromto)) for h in hand_geoms
-                  for o in object_geoms)
-    ok = all(-max_penetration <= d <= touch_tolerance for d in tips.values()) and deepest >= -max_penetration
-    return ok, {"tip_distance": tips, "deepest_penetration": deepest}
-
-
-def find_pregrasps(scene_path, regions, hint, candidates: int = 8, seed: int = 0, squeeze: float = 0.003,
-                   settle_steps: int = 40, keep: int = 4, contact=None) -> np.ndarray:
-    """Up to ``keep`` verified pre-grasps [K, nu] of the scene at ``scene_path`` (see the module docstring);
-    ``hint``: the hand pose IK starts from (and the unassigned fingers keep)."""
-    import mujoco
-    import torch
-
-    from ..sim import Control, Simulator, load_scene
-
-    scene = load_scene(scene_path, contact)
-    model = mujoco.MjModel.from_xml_path(str(scene_path))
-    data = mujoco.MjData(model)
-    nu = scene.num_hand_dofs
-    sites = _finger_sites(model, scene)
-    rng = np.random.default_rng(seed)
-    mujoco.mj_forward(model, data)
-    poses = np.zeros((candidates, nu))
-    for c in range(candidates):
-        q = model.qpos0.copy()
-        q[:nu] = hint
-        for r in regions:
-            g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, r.geom)
-            if g < 0:
-                raise PregraspError(f"region of finger {r.finger}: no geom named {r.geom!r} in {scene_path}")
-            rot = data.geom_xmat[g].reshape(3, 3)
-            local = np.asarray(r.point) + rng.uniform(-1, 1, 3) * np.asarray(r.spread)
-            normal = rot @ np.asarray(r.normal, dtype=float)
-            radius = float(model.geom_size[sites[r.finger][2], 0])
-            target = data.geom_xpos[g] + rot @ local + normal * (radius - squeeze)
-            _solve_ik(model, data, q, sites[r.finger][0], sites[r.finger][1], target)
-        poses[c] = q[:nu]
-
-    # settle in our simulator: a stiff PD hold of each IK pose; contact pushes the links out
-    sim = Simulator(scene, num_worlds=candidates, dtype=torch.float64, contact=contact)
-    joint_q, joint_qd = sim.initial_state()
-    joint_q[:, :nu] = torch.as_tensor(poses)
-    target = joint_q[:, :nu].clone()
-    inertia = torch.as_tensor(scene.dof_inertia0)
-    kp = (20.0**2 * inertia).expand(candidates, -1)
-    kd = 2.0 * torch.sqrt(kp * inertia)
-    control = Control(tau=torch.zeros_like(target), q_target=target, kp=kp.clone(), kd=kd.clone())
-    params = sim.default_params().expand(candidates).clone() if scene.param_names else None
-    if params is not None:  # the part held at rest (a stiff spring; implicit, so stable): the grasp must fit it there
-        params["joint_stiffness"] = torch.full_like(params["joint_stiffness"], 100.0)
-    with torch.no_grad():
-        for _ in range(settle_steps):
-            out = sim.step(joint_q, joint_qd, control, params)
-            joint_q, joint_qd = out.joint_q, out.joint_qd
-    # the limits are soft springs in the simulator: clamp onto the range the env draws start poses in
-    settled = np.clip(joint_q[:, :nu].numpy(), scene.dof_lower, scene.dof_upper)
-    kept = []
-    for c in range(candidates):
-        ok, details = _check(model, data, scene, settled[c], regions)  # the scene compiled once, above
-        log.info("pregrasp candidate %d: %s %s", c, "kept" if ok else "rejected", details)
-        if ok:
-            kept.append(settled[c])
-        if len(kept) == keep:
-            break
-    if not kept:
-        raise PregraspError(f"no pre-grasp of {candidates} candidates passed the contact check in {scene_path}")
-    return np.stack(kept)
 
 
 def save_pregrasps(path, task: str, poses: np.ndarray, seed: int, **fields) -> None:

@@ -147,7 +147,7 @@ class KnobTurnEnv(DexEnv):
             damping, friction, stiffness, rest = (td[("sim", "params", name)].to(self.dtype)[:, None]  # [N, 1, 1]
                                                   for name in ("joint_damping", "joint_friction", "joint_stiffness",
                                                                "joint_rest"))
-        # a sprung part (spray trigger, stapler arm) is held against its spring; a knob's stiffness is 0
+        # a sprung part is held against its spring; a knob's stiffness is 0
         return angle, part_torque(torch.where(moving, speed, 0.0), angle, (damping, friction, stiffness, rest))
 
     def demo_reference(self, demo: dict):

@@ -4,13 +4,14 @@ The hand (``assets/allegro_knob.xml``): four fingers of four hinges (index, midd
 j0-j15 in that order), capsule links (radius 9.8 mm) and fingertip spheres (12 mm), motors of 0.5 N m
 (IsaacGymEnvs' effort), joint damping 0.1, armature 0.001. ``allegro_rotate`` mounts it palm down over a
 knob (``assets/allegro_knob.xml``), ``repose_cube`` palm up with a cube on its colliding palm box
-(``assets/allegro_cube.xml``); ``spray_bottle``, ``scissors`` and ``stapler`` palm down over an operable
-object (``assets/allegro_<object>.xml``, :mod:`.operate`); ``operate`` over any articulated object of the
-library or a URDF (:mod:`.operate_object`), and one task per library class on it (:mod:`.tools`).
+(``assets/allegro_cube.xml``); ``operate`` palm down over any articulated object of the library or a URDF
+standing on a table (:mod:`.operate_object`), and one task per library class on it (:mod:`.tools`:
+``spray_bottle``, ``scissors``, ``stapler``, ``pump_dispenser``, ``jar``, ``valve``, ``drawer``, ``pliers``,
+``door_handle``).
 """
 
 from __future__ import annotations
 
-from . import operate_object, repose, rotate, scissors, spray_bottle, stapler, tools  # noqa: F401  (register the tasks)
+from . import operate_object, repose, rotate, tools  # noqa: F401  (register the tasks)
 
-__all__ = ["operate_object", "repose", "rotate", "scissors", "spray_bottle", "stapler", "tools"]
+__all__ = ["operate_object", "repose", "rotate", "tools"]

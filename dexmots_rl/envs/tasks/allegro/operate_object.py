@@ -37,18 +37,21 @@ import torch
 from tensordict import TensorDict
 
 from ....quaternions import quat_angle
+from ....sim import ContactParams
 from ...base import DexEnv
 from ...demos import demo_trajectory, part_torque
 from ...object_pregrasp import operate_pregrasp_path
 from ...pregrasp import PregraspError, load_pregrasps
 from ...references import lookup
 from ...registry import register_task
-from .operate import HAND_CONTACT
 from ...config import TaskConfig, rule
 from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward, distal_weighted_joint_weights, \
     fingertip_reward
 
-__all__ = ["OperateObjectConfig", "OperateObjectEnv", "build_scene"]
+__all__ = ["OperateObjectConfig", "OperateObjectEnv", "HAND_CONTACT", "build_scene"]
+
+# the hand's contact law as allegro_rotate sizes it (a centimetre-scale object, fingertips pushing ~5 N)
+HAND_CONTACT = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
 
 OPEN = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)  # rad: fingers slightly curled, the thumb opposed
 

@@ -35,8 +35,26 @@ import dataclasses
 from ...registry import register_task
 from .operate_object import OperateObjectConfig, OperateObjectEnv
 
-__all__ = ["PumpDispenserConfig", "JarConfig", "ValveConfig", "DrawerConfig", "PliersConfig", "DoorHandleConfig",
+__all__ = ["SprayBottleConfig", "ScissorsConfig", "StaplerConfig", "PumpDispenserConfig", "JarConfig", "ValveConfig", "DrawerConfig", "PliersConfig", "DoorHandleConfig",
            "TOOL_TASKS"]
+
+
+@dataclasses.dataclass
+class SprayBottleConfig(OperateObjectConfig):
+    name: str = "spray_bottle"
+    object: str = "spray_bottle_a"
+
+
+@dataclasses.dataclass
+class ScissorsConfig(OperateObjectConfig):
+    name: str = "scissors"
+    object: str = "scissors_a"
+
+
+@dataclasses.dataclass
+class StaplerConfig(OperateObjectConfig):
+    name: str = "stapler"
+    object: str = "stapler_a"
 
 
 @dataclasses.dataclass
@@ -76,7 +94,7 @@ class DoorHandleConfig(OperateObjectConfig):
 
 
 TOOL_TASKS = {config.name: config for config in (
-    PumpDispenserConfig, JarConfig, ValveConfig, DrawerConfig,
+    SprayBottleConfig, ScissorsConfig, StaplerConfig, PumpDispenserConfig, JarConfig, ValveConfig, DrawerConfig,
     PliersConfig, DoorHandleConfig)}  # task name -> its config class (one per library class)
 
 for _name, _config in TOOL_TASKS.items():
