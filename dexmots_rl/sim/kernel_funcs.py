@@ -2,8 +2,9 @@
 
 :func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
 ``axis_angle`` (a rotation matrix), ``limit_ramp`` / ``limit_slope`` (a range stop's C1 penalty and its slope),
-``box_distance`` (signed distance and outward normal of a point to a box) and ``grid_distance`` (the same from a
-mesh's signed-distance grid, sim/mesh_sdf.py).
+``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
+interpolant and its gradient) and ``grid_distance`` (signed distance and normal from a mesh's grid,
+sim/mesh_sdf.py).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -77,6 +78,22 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         return vec4(d, n[0], n[1], n[2])
 
     @wp.func
+    def trilinear(c000: dtype, c001: dtype, c010: dtype, c011: dtype, c100: dtype, c101: dtype, c110: dtype,
+                  c111: dtype, f: vec3):
+        """The trilinear interpolant of a cell's corner values c_ijk (i along x) at fractions f in [0, 1]^3, and
+        its gradient in cell units, packed as (value, d/dfx, d/dfy, d/dfz)."""
+        one = dtype(1.0)
+        c00 = c000 * (one - f[0]) + c100 * f[0]
+        c01 = c001 * (one - f[0]) + c101 * f[0]
+        c10 = c010 * (one - f[0]) + c110 * f[0]
+        c11 = c011 * (one - f[0]) + c111 * f[0]
+        c0 = c00 * (one - f[1]) + c10 * f[1]
+        c1 = c01 * (one - f[1]) + c11 * f[1]
+        dx = ((c100 - c000) * (one - f[1]) + (c110 - c010) * f[1]) * (one - f[2]) \
+            + ((c101 - c001) * (one - f[1]) + (c111 - c011) * f[1]) * f[2]
+        return vec4(c0 * (one - f[2]) + c1 * f[2], dx, (c10 - c00) * (one - f[2]) + (c11 - c01) * f[2], c1 - c0)
+
+    @wp.func
     def grid_distance(values: wp.array(dtype=dtype), grid: wp.vec4i, h: vec3, p: vec3):
         """Signed distance (m, negative inside) and outward unit normal of point p (grid frame: the grid's box
         is centred at the origin with half sizes h) from a signed-distance grid, packed as (d, n). ``grid``:
@@ -110,25 +127,16 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         c101 = values[first + sx + 1]
         c110 = values[first + sx + nz]
         c111 = values[first + sx + nz + 1]
-        one = dtype(1.0)
-        c00 = c000 * (one - fx) + c100 * fx
-        c01 = c001 * (one - fx) + c101 * fx
-        c10 = c010 * (one - fx) + c110 * fx
-        c11 = c011 * (one - fx) + c111 * fx
-        c0 = c00 * (one - fy) + c10 * fy
-        c1 = c01 * (one - fy) + c11 * fy
-        d = c0 * (one - fz) + c1 * fz
-        dx = ((c100 - c000) * (one - fy) + (c110 - c010) * fy) * (one - fz) \
-            + ((c101 - c001) * (one - fy) + (c111 - c011) * fy) * fz
-        dy = (c10 - c00) * (one - fz) + (c11 - c01) * fz
-        dz = c1 - c0
-        n = wp.normalize(vec3(dx, dy, dz))
+        dg = trilinear(c000, c001, c010, c011, c100, c101, c110, c111, vec3(fx, fy, fz))
+        d = dg[0]
+        n = wp.normalize(vec3(dg[1], dg[2], dg[3]))
         beyond = vec3(gx - cx, gy - cy, gz - cz) * cell  # p minus the nearest point of the grid's box (m)
         far2 = wp.dot(beyond, beyond)
         if far2 > dtype(0.0):
-            d = d + wp.sqrt(far2)
-            n = wp.normalize(n * wp.max(c0 * (one - fz) + c1 * fz, dtype(0.0)) + beyond)
+            d = dg[0] + wp.sqrt(far2)
+            n = wp.normalize(n * wp.max(dg[0], dtype(0.0)) + beyond)
         return vec4(d, n[0], n[1], n[2])
 
     return types.SimpleNamespace(softplus=softplus, axis_angle=axis_angle, limit_ramp=limit_ramp,
-                                 limit_slope=limit_slope, box_distance=box_distance, grid_distance=grid_distance)
+                                 limit_slope=limit_slope, box_distance=box_distance, trilinear=trilinear,
+                                 grid_distance=grid_distance)
