@@ -15,12 +15,12 @@ from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import load_object
 from dexmots_rl.sim import load_scene
 from dexmots_rl.sim.articulated import ArticulatedSimulator
-from dexmots_rl.sim.articulated_scene import SDF_PAD
-from dexmots_rl.sim.hand_kernels import GEOM_SDF, build_hand_kernels
+from dexmots_rl.sim.hand_kernels import GEOM_SDF, SDF_PAD, build_hand_kernels
 from dexmots_rl.sim.kernel_funcs import build_funcs
 from dexmots_rl.sim.mesh_sdf import sdf_grid
 
-vec3d, vec4d, mat33d = wp.types.vector(3, wp.float64), wp.types.vector(4, wp.float64), wp.types.matrix((3, 3), wp.float64)
+vec3d, vec4d = wp.types.vector(3, wp.float64), wp.types.vector(4, wp.float64)
+mat33d = wp.types.matrix((3, 3), wp.float64)
 
 
 @functools.lru_cache(maxsize=None)

@@ -11,16 +11,12 @@ import dataclasses
 
 import numpy as np
 
-from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE
+from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, SDF_PAD
 from .mesh_sdf import sdf_grid
 from .mjcf_shapes import AssetError, _quat_to_mat
 from .object_model import ObjectTree
 
-__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms", "SDF_PAD"]
-
-# m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
-# 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
-SDF_PAD = 0.02
+__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
 
 
 @dataclasses.dataclass
@@ -45,6 +41,8 @@ class ObjectGeoms:
         radius = np.linalg.norm(self.size, axis=-1)  # box, grid: half diagonal; cylinder: (r, half length)
         radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
         radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
+        # the mesh lies in the grid's box shrunk by the pad, whose half diagonal is at most this
+        radius = np.where(self.kind == GEOM_SDF, radius - SDF_PAD, radius)
         reach = np.linalg.norm(self.pos, axis=-1) + radius
         reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
         return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)

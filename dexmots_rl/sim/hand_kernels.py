@@ -4,8 +4,8 @@ Two kernels per substep (sim/articulated.py runs them around the object tree's, 
 
 * ``finger_contact``, a thread per world and finger sample sphere: the sphere's pose and velocity through its
   finger chain, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
-  cylinder, or a mesh's signed-distance grid), and a relaxed penalty contact with Coulomb friction (:class:`~dexmots_rl.sim.ContactParams`' law)
-  per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
+  cylinder, or a mesh's signed-distance grid), and a relaxed penalty contact with Coulomb friction
+  (:class:`~dexmots_rl.sim.ContactParams`' law) per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
   and torque about its com) with atomic adds, so contacts of one world sum in any order.
 * ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces (a sum over links
   of J^T M J and J^T (inertial) wrenches), the motor's PD drive (implicit, smoothly saturated at its effort),
@@ -24,12 +24,16 @@ import warp as wp
 
 from .kernel_funcs import build_funcs
 
-__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF"]
+__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF",
+           "SDF_PAD"]
 
 GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_SDF = -1, 0, 1, 2, 3, 4
 LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
 FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
 CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
+# m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
+# 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
+SDF_PAD = 0.02
 
 
 @functools.lru_cache(maxsize=None)
@@ -68,7 +72,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         geom_kind: wp.array2d(dtype=wp.int32)  # [B, G] GEOM_* (GEOM_NONE: padding)
         geom_pos: wp.array2d(dtype=vec3)  # [B, G] m, body frame
         geom_rot: wp.array2d(dtype=mat33)  # [B, G] geom -> body
-        geom_size: wp.array2d(dtype=vec3)  # [B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder: (r, half length)
+        geom_size: wp.array2d(dtype=vec3)  # [B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder:
+        # (r, half length)
         geom_grid: wp.array2d(dtype=wp.vec4i)  # [B, G] sdf: (first index in sdf_values, points along x, y, z)
         sdf_values: wp.array(dtype=dtype)  # every sdf geom's grid (m, negative inside), x-major, one after another
         body_bound: wp.array(dtype=dtype)  # [B] m: a sphere about the body origin holding all its geoms (with margin)
@@ -163,8 +168,17 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             kind = m.geom_kind[b, g]
             if kind != GEOM_NONE:
                 Rg = m.geom_rot[b, g]
-                d = geom_distance(kind, m.geom_size[b, g], m.geom_grid[b, g], m.sdf_values,
-                                  wp.transpose(Rg) * (pl - m.geom_pos[b, g]))[0]
+                pg = wp.transpose(Rg) * (pl - m.geom_pos[b, g])
+                size = m.geom_size[b, g]
+                d = best_d
+                if kind == GEOM_SDF:
+                    # the mesh lies in the grid's box shrunk by the pad: the distance to that box is a lower
+                    # bound of the mesh's, and a grid lookup is only needed where it is below the best so far
+                    pad = dtype(SDF_PAD)
+                    if box_distance(size - vec3(pad, pad, pad), pg)[0] < best_d:
+                        d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
+                else:
+                    d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
                 if d < best_d:
                     best_d = d
                     best_g = g
