@@ -159,10 +159,10 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         return vec4(d, n[0], n[1], n[2])
 
     @wp.func
-    def nearest_geom(m: Model, b: int, pl: vec3):
+    def nearest_geom(m: Model, b: int, pl: vec3, reach: dtype):
         """Index of body b's geom nearest to point pl (body frame): the first of the smallest signed distances
-        below 1e6 m; -1 if none."""
-        best_d = dtype(1.0e6)
+        below ``reach`` (m; a sphere farther than that from every geom feels nothing); -1 if none."""
+        best_d = reach
         best_g = int(-1)
         for g in range(G):
             kind = m.geom_kind[b, g]
@@ -185,7 +185,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         return best_g
 
     @wp.func_grad(nearest_geom)
-    def adj_nearest_geom(m: Model, b: int, pl: vec3, adj_ret: int):
+    def adj_nearest_geom(m: Model, b: int, pl: vec3, reach: dtype, adj_ret: int):
         pass  # an index: nothing to differentiate (the reverse pass skips the G distances' adjoints)
 
     @wp.kernel(module="unique", enable_backward=True)
@@ -248,7 +248,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 Rb = body_R[w, b]
                 pl = wp.transpose(Rb) * (p - xb)
                 best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                g = nearest_geom(m, b, pl)  # found without an adjoint; only the nearest geom's distance has one
+                # found without an adjoint; only the nearest geom's distance has one, and only within the cutoff
+                g = nearest_geom(m, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
                 if g >= 0:
                     Rg = m.geom_rot[b, g]
                     dn = geom_distance(m.geom_kind[b, g], m.geom_size[b, g], m.geom_grid[b, g], m.sdf_values,
