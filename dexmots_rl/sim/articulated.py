@@ -111,6 +111,8 @@ class ArticulatedSimulator(ObjectSimulator):
         m.tip_pos = arr(s.tip_pos, k.vec3)
         m.geom_kind = wp.array(geoms.kind, dtype=wp.int32, device=self.device)
         m.geom_pos, m.geom_rot, m.geom_size = arr(geoms.pos, k.vec3), arr(geoms.rot, k.mat33), arr(geoms.size, k.vec3)
+        m.geom_grid = wp.array(geoms.grid, dtype=wp.vec4i, device=self.device)
+        m.sdf_values = arr(geoms.sdf_values, wdt)
         m.body_bound = arr(geoms.bound(), wdt)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)

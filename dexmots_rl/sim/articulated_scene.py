@@ -11,8 +11,9 @@ import dataclasses
 
 import numpy as np
 
-from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SPHERE
-from .mjcf_shapes import _quat_to_mat
+from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, SDF_PAD
+from .mesh_sdf import sdf_grid
+from .mjcf_shapes import AssetError, _quat_to_mat
 from .object_model import ObjectTree
 
 __all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
@@ -22,19 +23,26 @@ __all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
 class ObjectGeoms:
     """The object's collision geoms for finger contact, per body (``[B, G]``, G the most any body has):
     kind (GEOM_*; GEOM_NONE pads), centre (m) and rotation in the body frame, sizes (m: box half sizes; sphere
-    radius; capsule and cylinder radius and half length). A mesh geom collides as its oriented bounding box."""
+    radius; capsule and cylinder radius and half length). A mesh geom (GEOM_SDF) collides through the signed
+    distance of its watertight mesh sampled on a grid (sim/mesh_sdf.py): its frame is centred on the grid's box,
+    its size the box's half sizes, ``grid`` [B, G, 4] (first index in ``sdf_values``, points along x, y, z),
+    ``sdf_values`` every grid (m, negative inside) flattened x-major, one after another."""
 
     kind: np.ndarray
     pos: np.ndarray
     rot: np.ndarray
     size: np.ndarray
+    grid: np.ndarray
+    sdf_values: np.ndarray
 
     def bound(self, margin: float = 1.0e-3) -> np.ndarray:
         """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
         (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
-        radius = np.linalg.norm(self.size, axis=-1)  # box: half diagonal; cylinder: (r, half length)
+        radius = np.linalg.norm(self.size, axis=-1)  # box, grid: half diagonal; cylinder: (r, half length)
         radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
         radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
+        # the mesh lies in the grid's box shrunk by the pad, whose half diagonal is at most this
+        radius = np.where(self.kind == GEOM_SDF, radius - SDF_PAD, radius)
         reach = np.linalg.norm(self.pos, axis=-1) + radius
         reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
         return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)
@@ -43,11 +51,10 @@ class ObjectGeoms:
 def object_geoms(m) -> ObjectGeoms:
     """Read the collision geoms of body ``object`` and its descendants from a compiled model."""
     import mujoco
-    import trimesh
 
     root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
     bodies = [root] + [b for b in range(root + 1, m.nbody) if _descends(m, b, root)]
-    per_body = []
+    per_body, grids, grid_values, used = [], [], [], 0
     for b in bodies:
         geoms = []
         for g in range(m.ngeom):
@@ -64,22 +71,42 @@ def object_geoms(m) -> ObjectGeoms:
             elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
                 geoms.append((GEOM_CYLINDER, pos, rot, np.array([size[0], size[1], 0.0])))
             elif kind == mujoco.mjtGeom.mjGEOM_MESH:
-                mid = m.geom_dataid[g]
-                verts = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
-                box = trimesh.PointCloud(verts).bounding_box_oriented
-                local = np.asarray(box.primitive.transform)
-                geoms.append((GEOM_BOX, pos + rot @ local[:3, 3], rot @ local[:3, :3],
-                              np.asarray(box.primitive.extents) / 2))
+                values, lo, cell = sdf_grid(*_watertight_mesh(m, g), pad=SDF_PAD)
+                half = 0.5 * cell * (np.array(values.shape) - 1)
+                grids.append((used, *values.shape))
+                grid_values.append(values.reshape(-1))
+                used += values.size
+                geoms.append((GEOM_SDF, pos + rot @ (lo + half), rot, half))
         per_body.append(geoms)
     # padded to at least 4 geoms per body: most objects then share one compiled contact kernel
     width = max(4, max(len(g) for g in per_body))
     kind = np.full((len(bodies), width), GEOM_NONE, dtype=np.int32)
     pos, size = np.zeros((len(bodies), width, 3)), np.zeros((len(bodies), width, 3))
     rot = np.tile(np.eye(3), (len(bodies), width, 1, 1))
+    grid = np.zeros((len(bodies), width, 4), dtype=np.int32)
     for b, geoms in enumerate(per_body):
         for g, (k, p, r, s) in enumerate(geoms):
             kind[b, g], pos[b, g], rot[b, g], size[b, g] = k, p, r, s
-    return ObjectGeoms(kind, pos, rot, size)
+            if k == GEOM_SDF:
+                grid[b, g] = grids.pop(0)
+    # a scene without a mesh still binds one value (warp's kernels take no empty array)
+    values = np.concatenate(grid_values) if grid_values else np.zeros(1)
+    return ObjectGeoms(kind, pos, rot, size, grid, values)
+
+
+def _watertight_mesh(m, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (geom frame) and faces of mesh geom ``g``; an error naming the geom if it is not watertight."""
+    import mujoco
+    import trimesh
+
+    mid = m.geom_dataid[g]
+    verts = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
+    faces = m.mesh_face[m.mesh_faceadr[mid]: m.mesh_faceadr[mid] + m.mesh_facenum[mid]]
+    mesh = trimesh.Trimesh(verts, faces, process=True)
+    if not mesh.is_watertight:
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+        raise AssetError(f"geom {name!r}: its mesh is not watertight, so its signed distance is undefined")
+    return mesh.vertices, mesh.faces
 
 
 def _descends(m, b: int, root: int) -> bool:

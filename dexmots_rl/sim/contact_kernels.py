@@ -13,6 +13,7 @@ import types
 
 import warp as wp
 
+from .kernel_funcs import build_funcs
 from .mjcf_shapes import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
 from .model import HINGE
 
@@ -28,6 +29,7 @@ def build_contact(t) -> types.SimpleNamespace:
     dtype, vec3, vec4, mat33, vecJ, matJ3, vecC, mat43 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3, t.vecC, t.mat43
     Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
     BOX = t.box  # the convex object is an axis-aligned box (Model.obj_box_center / obj_box_half)
+    trilinear = build_funcs(dtype).trilinear
 
     @wp.func
     def softplus(x: dtype, beta: dtype):
@@ -70,19 +72,9 @@ def build_contact(t) -> types.SimpleNamespace:
         c101 = m.sdf[i + 1, j, k + 1]
         c011 = m.sdf[i, j + 1, k + 1]
         c111 = m.sdf[i + 1, j + 1, k + 1]
-        one = dtype(1.0)
-        c00 = c000 * (one - fx) + c100 * fx
-        c10 = c010 * (one - fx) + c110 * fx
-        c01 = c001 * (one - fx) + c101 * fx
-        c11 = c011 * (one - fx) + c111 * fx
-        c0 = c00 * (one - fy) + c10 * fy
-        c1 = c01 * (one - fy) + c11 * fy
-        d = c0 * (one - fz) + c1 * fz
-        gx = ((c100 - c000) * (one - fy) + (c110 - c010) * fy) * (one - fz) + ((c101 - c001) * (one - fy) + (c111 - c011) * fy) * fz
-        gy = (c10 - c00) * (one - fz) + (c11 - c01) * fz
-        gz = c1 - c0
-        n = vec3(gx, gy, gz) + (g - gc)  # outside the grid: point away from it
-        return d + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
+        dg = trilinear(c000, c001, c010, c011, c100, c101, c110, c111, vec3(fx, fy, fz))
+        n = vec3(dg[1], dg[2], dg[3]) + (g - gc)  # outside the grid: point away from it
+        return dg[0] + m.sdf_cell * wp.length(g - gc), wp.normalize(n)
 
     @wp.func(inline=True)
     def box_face_max(h: vec3, q: vec3):

@@ -4,8 +4,8 @@ Two kernels per substep (sim/articulated.py runs them around the object tree's, 
 
 * ``finger_contact``, a thread per world and finger sample sphere: the sphere's pose and velocity through its
   finger chain, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
-  cylinder), and a relaxed penalty contact with Coulomb friction (:class:`~dexmots_rl.sim.ContactParams`' law)
-  per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
+  cylinder, or a mesh's signed-distance grid), and a relaxed penalty contact with Coulomb friction
+  (:class:`~dexmots_rl.sim.ContactParams`' law) per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
   and torque about its com) with atomic adds, so contacts of one world sum in any order.
 * ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces (a sum over links
   of J^T M J and J^T (inertial) wrenches), the motor's PD drive (implicit, smoothly saturated at its effort),
@@ -24,12 +24,16 @@ import warp as wp
 
 from .kernel_funcs import build_funcs
 
-__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER"]
+__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF",
+           "SDF_PAD"]
 
-GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER = -1, 0, 1, 2, 3
+GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_SDF = -1, 0, 1, 2, 3, 4
 LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
 FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
 CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
+# m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
+# 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
+SDF_PAD = 0.02
 
 
 @functools.lru_cache(maxsize=None)
@@ -68,7 +72,10 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         geom_kind: wp.array2d(dtype=wp.int32)  # [B, G] GEOM_* (GEOM_NONE: padding)
         geom_pos: wp.array2d(dtype=vec3)  # [B, G] m, body frame
         geom_rot: wp.array2d(dtype=mat33)  # [B, G] geom -> body
-        geom_size: wp.array2d(dtype=vec3)  # [B, G] box: half sizes; sphere: (r); capsule, cylinder: (r, half length)
+        geom_size: wp.array2d(dtype=vec3)  # [B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder:
+        # (r, half length)
+        geom_grid: wp.array2d(dtype=wp.vec4i)  # [B, G] sdf: (first index in sdf_values, points along x, y, z)
+        sdf_values: wp.array(dtype=dtype)  # every sdf geom's grid (m, negative inside), x-major, one after another
         body_bound: wp.array(dtype=dtype)  # [B] m: a sphere about the body origin holding all its geoms (with margin)
         gravity: vec3
         ke: dtype  # N/m: contact stiffness
@@ -80,6 +87,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     funcs = build_funcs(dtype)
     softplus, axis_angle, limit_ramp, box_distance = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
         funcs.box_distance
+    grid_distance = funcs.grid_distance
 
     @wp.func
     def unit_j(k: int):
@@ -111,11 +119,15 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         out[w, b * 7 + 6] = rq[2]
 
     @wp.func
-    def geom_distance(kind: int, size: vec3, p: vec3):
+    def geom_distance(kind: int, size: vec3, grid: wp.vec4i, values: wp.array(dtype=dtype), p: vec3):
         """Signed distance (m, negative inside) and outward unit normal of point p (geom frame), packed."""
         d = dtype(1.0e6)
         n = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
-        if kind == GEOM_SPHERE:
+        if kind == GEOM_SDF:
+            dn = grid_distance(values, grid, size, p)
+            d = dn[0]
+            n = vec3(dn[1], dn[2], dn[3])
+        elif kind == GEOM_SPHERE:
             r = wp.length(p)
             d = r - size[0]
             n = p / wp.max(r, dtype(1.0e-9))
@@ -147,23 +159,33 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         return vec4(d, n[0], n[1], n[2])
 
     @wp.func
-    def nearest_geom(m: Model, b: int, pl: vec3):
+    def nearest_geom(m: Model, b: int, pl: vec3, reach: dtype):
         """Index of body b's geom nearest to point pl (body frame): the first of the smallest signed distances
-        below 1e6 m; -1 if none."""
-        best_d = dtype(1.0e6)
+        below ``reach`` (m; a sphere farther than that from every geom feels nothing); -1 if none."""
+        best_d = reach
         best_g = int(-1)
         for g in range(G):
             kind = m.geom_kind[b, g]
             if kind != GEOM_NONE:
                 Rg = m.geom_rot[b, g]
-                d = geom_distance(kind, m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))[0]
+                pg = wp.transpose(Rg) * (pl - m.geom_pos[b, g])
+                size = m.geom_size[b, g]
+                d = best_d
+                if kind == GEOM_SDF:
+                    # the mesh lies in the grid's box shrunk by the pad: the distance to that box is a lower
+                    # bound of the mesh's, and a grid lookup is only needed where it is below the best so far
+                    pad = dtype(SDF_PAD)
+                    if box_distance(size - vec3(pad, pad, pad), pg)[0] < best_d:
+                        d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
+                else:
+                    d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
                 if d < best_d:
                     best_d = d
                     best_g = g
         return best_g
 
     @wp.func_grad(nearest_geom)
-    def adj_nearest_geom(m: Model, b: int, pl: vec3, adj_ret: int):
+    def adj_nearest_geom(m: Model, b: int, pl: vec3, reach: dtype, adj_ret: int):
         pass  # an index: nothing to differentiate (the reverse pass skips the G distances' adjoints)
 
     @wp.kernel(module="unique", enable_backward=True)
@@ -226,10 +248,12 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 Rb = body_R[w, b]
                 pl = wp.transpose(Rb) * (p - xb)
                 best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                g = nearest_geom(m, b, pl)  # found without an adjoint; only the nearest geom's distance has one
+                # found without an adjoint; only the nearest geom's distance has one, and only within the cutoff
+                g = nearest_geom(m, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
                 if g >= 0:
                     Rg = m.geom_rot[b, g]
-                    dn = geom_distance(m.geom_kind[b, g], m.geom_size[b, g], wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
+                    dn = geom_distance(m.geom_kind[b, g], m.geom_size[b, g], m.geom_grid[b, g], m.sdf_values,
+                                       wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
                     nb = Rg * vec3(dn[1], dn[2], dn[3])
                     best = vec4(dn[0], nb[0], nb[1], nb[2])
                 pen = rad - best[0]
@@ -360,4 +384,4 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             write_pose(pose, w, F * J + b, body_x[w, b], body_R[w, b])
 
     return types.SimpleNamespace(Model=Model, finger_contact=finger_contact, hand_substep=hand_substep,
-                                 observe=observe, vec3=vec3, mat33=mat33, dtype=dtype)
+                                 observe=observe, geom_distance=geom_distance, vec3=vec3, mat33=mat33, dtype=dtype)

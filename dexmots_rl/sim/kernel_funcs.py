@@ -1,8 +1,10 @@
 """Small warp functions the articulated-object kernels share, generic in the float type.
 
 :func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
-``axis_angle`` (a rotation matrix), ``limit_ramp`` / ``limit_slope`` (a range stop's C1 penalty and its slope) and
-``box_distance`` (signed distance and outward normal of a point to a box).
+``axis_angle`` (a rotation matrix), ``limit_ramp`` / ``limit_slope`` (a range stop's C1 penalty and its slope),
+``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
+interpolant and its gradient) and ``grid_distance`` (signed distance and normal from a mesh's grid,
+sim/mesh_sdf.py).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -75,5 +77,66 @@ def build_funcs(float_type) -> types.SimpleNamespace:
                 n = vec3(dtype(0.0), dtype(0.0), wp.sign(p[2]))
         return vec4(d, n[0], n[1], n[2])
 
+    @wp.func
+    def trilinear(c000: dtype, c001: dtype, c010: dtype, c011: dtype, c100: dtype, c101: dtype, c110: dtype,
+                  c111: dtype, f: vec3):
+        """The trilinear interpolant of a cell's corner values c_ijk (i along x) at fractions f in [0, 1]^3, and
+        its gradient in cell units, packed as (value, d/dfx, d/dfy, d/dfz)."""
+        one = dtype(1.0)
+        c00 = c000 * (one - f[0]) + c100 * f[0]
+        c01 = c001 * (one - f[0]) + c101 * f[0]
+        c10 = c010 * (one - f[0]) + c110 * f[0]
+        c11 = c011 * (one - f[0]) + c111 * f[0]
+        c0 = c00 * (one - f[1]) + c10 * f[1]
+        c1 = c01 * (one - f[1]) + c11 * f[1]
+        dx = ((c100 - c000) * (one - f[1]) + (c110 - c010) * f[1]) * (one - f[2]) \
+            + ((c101 - c001) * (one - f[1]) + (c111 - c011) * f[1]) * f[2]
+        return vec4(c0 * (one - f[2]) + c1 * f[2], dx, (c10 - c00) * (one - f[2]) + (c11 - c01) * f[2], c1 - c0)
+
+    @wp.func
+    def grid_distance(values: wp.array(dtype=dtype), grid: wp.vec4i, h: vec3, p: vec3):
+        """Signed distance (m, negative inside) and outward unit normal of point p (grid frame: the grid's box
+        is centred at the origin with half sizes h) from a signed-distance grid, packed as (d, n). ``grid``:
+        (first index in ``values``, points along x, y, z); ``values`` holds the grid x-major, spacing
+        2 h_x / (nx - 1). Inside the box: trilinear interpolation, n its normalised gradient. Outside: the value
+        at the nearest point of the box plus the distance to it, n pointing from the surface to p (the grid is
+        padded beyond a finger sphere's radius, so a touching sphere's centre is inside)."""
+        nx = grid[1]
+        ny = grid[2]
+        nz = grid[3]
+        cell = dtype(2.0) * h[0] / dtype(nx - 1)
+        gx = (p[0] + h[0]) / cell
+        gy = (p[1] + h[1]) / cell
+        gz = (p[2] + h[2]) / cell
+        cx = wp.clamp(gx, dtype(0.0), dtype(nx - 1))
+        cy = wp.clamp(gy, dtype(0.0), dtype(ny - 1))
+        cz = wp.clamp(gz, dtype(0.0), dtype(nz - 1))
+        i = wp.min(int(cx), nx - 2)
+        j = wp.min(int(cy), ny - 2)
+        k = wp.min(int(cz), nz - 2)
+        fx = cx - dtype(i)
+        fy = cy - dtype(j)
+        fz = cz - dtype(k)
+        first = grid[0] + (i * ny + j) * nz + k
+        sx = ny * nz
+        c000 = values[first]
+        c001 = values[first + 1]
+        c010 = values[first + nz]
+        c011 = values[first + nz + 1]
+        c100 = values[first + sx]
+        c101 = values[first + sx + 1]
+        c110 = values[first + sx + nz]
+        c111 = values[first + sx + nz + 1]
+        dg = trilinear(c000, c001, c010, c011, c100, c101, c110, c111, vec3(fx, fy, fz))
+        d = dg[0]
+        n = wp.normalize(vec3(dg[1], dg[2], dg[3]))
+        beyond = vec3(gx - cx, gy - cy, gz - cz) * cell  # p minus the nearest point of the grid's box (m)
+        far2 = wp.dot(beyond, beyond)
+        if far2 > dtype(0.0):
+            d = dg[0] + wp.sqrt(far2)
+            n = wp.normalize(n * wp.max(dg[0], dtype(0.0)) + beyond)
+        return vec4(d, n[0], n[1], n[2])
+
     return types.SimpleNamespace(softplus=softplus, axis_angle=axis_angle, limit_ramp=limit_ramp,
-                                 limit_slope=limit_slope, box_distance=box_distance)
+                                 limit_slope=limit_slope, box_distance=box_distance, trilinear=trilinear,
+                                 grid_distance=grid_distance)

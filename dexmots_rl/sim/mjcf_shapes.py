@@ -1,5 +1,5 @@
 """Reading geometry out of a compiled MuJoCo model: link contact spheres, the object's collision shape
-(convex planes, sphere, cylinder or a signed-distance grid built with trimesh), palm and object-base
+(convex planes, sphere, cylinder or a signed-distance grid, sim/mesh_sdf.py), palm and object-base
 boxes, the object's surface samples. :func:`dexmots_rl.sim.model.load_scene` assembles the scene from these.
 """
 
@@ -59,16 +59,12 @@ def _link_points(m, b: int, per_capsule: int) -> list[tuple[np.ndarray, float]]:
 
 
 def _sdf_grid(mesh, pad: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Signed distance (negative inside) sampled on a regular grid around ``mesh`` (trimesh)."""
-    import trimesh
+    """Signed distance (negative inside) sampled on a regular grid around ``mesh`` (trimesh), its longest axis
+    :data:`SDF_RESOLUTION` points."""
+    from .mesh_sdf import sdf_grid
 
-    lo, hi = mesh.bounds[0] - pad, mesh.bounds[1] + pad
-    cell = float((hi - lo).max() / (SDF_RESOLUTION - 1))
-    dims = np.ceil((hi - lo) / cell).astype(int) + 1
-    axes = [lo[i] + cell * np.arange(dims[i]) for i in range(3)]
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    values = -trimesh.proximity.signed_distance(mesh, points)  # trimesh: positive inside
-    return values.reshape(*dims), lo, cell
+    cell = float((np.ptp(mesh.bounds, 0) + 2 * pad).max() / (SDF_RESOLUTION - 1))
+    return sdf_grid(mesh.vertices, mesh.faces, pad, cell)
 
 
 def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]:

@@ -58,7 +58,8 @@ def _scissor_half(p: ScissorsParams, side: float, z0: float, colour, tag: str, m
     ring = shapes.ring(p.ring_radius, outer, ring_t, centre)
     shank_r = 0.3 * p.ring_band + 0.5 * t  # a round shank a little thicker than the blade, resting on z0
     shank_start = (0.0, 0.0, z0 + shank_r)
-    shank_end = (-p.handle_length + 0.8 * outer, side * p.handle_spread * 0.8, shank_r)
+    # the shank ends on the ring's outer rim, its round end clear of the hole (a finger fits in the ring)
+    shank_end = (-p.handle_length + outer, side * p.handle_spread * 0.8, shank_r)
     shank = shapes.capsule(shank_r, shank_start, shank_end)
     pivot = shapes.cylinder(0.005, (0, 0, z0), (0, 0, z0 + t + 0.0015))
     meshes[f"half_{tag}"] = shapes.to_trimesh(shapes.union([blade, ring, shank, pivot]))
