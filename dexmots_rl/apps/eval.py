@@ -3,6 +3,11 @@
     dexmots-eval runs/screw_claw_ahac_seed0                       # its checkpoints/last.pt, 100 episodes
     dexmots-eval runs/screw_claw_ahac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
     dexmots-eval runs/screw_claw_ahac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
+    dexmots-eval runs/spray_bottle_ahac_seed0 --objects heldout      # a tool task on its class's held-out objects
+
+``--objects`` evaluates a policy of an articulated-object task on other objects of the same topology:
+``train`` / ``heldout`` (the class's library split, :func:`dexmots_rl.assets.objects.object_split`) or names
+separated by commas; the result says which (``objects``) and breaks success down by object (``success_by_variant``).
 
 The episodes are the checkpoint's task (:func:`dexmots_rl.algorithms.evaluation.evaluate_policy`).
 """
@@ -29,6 +34,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default=None, help="JSON file (default: <run dir>/eval.json)")
     p.add_argument("--record", default=None, help="also write the first --record-worlds episodes to this MCAP file")
     p.add_argument("--record-worlds", type=int, default=8)
+    p.add_argument("--objects", default=None,
+                   help="articulated-object tasks: train | heldout | names separated by commas (default: the run's)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     from ..algorithms.checkpoint import CheckpointError
@@ -42,8 +49,14 @@ def main(argv: list[str] | None = None) -> None:
 def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None:
     try:
         actor, data = policy_from_checkpoint(args.checkpoint, args.device)
+        task_cfg = dict(data["config"]["task"])
+        if args.objects is not None:
+            if "objects" not in task_cfg:
+                raise ValueError(f"--objects: task {data['task']!r} has no object variants (task.objects)")
+            task_cfg.update(objects=args.objects, variants=0)
         result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
-                  **evaluate_policy(actor, data["config"]["task"], args.episodes, args.seed, args.device,
+                  **({"objects": args.objects} if args.objects is not None else {}),
+                  **evaluate_policy(actor, task_cfg, args.episodes, args.seed, args.device,
                                      record=args.record, record_worlds=args.record_worlds)}
     except (CheckpointError, ValueError) as e:
         raise SystemExit(f"dexmots-eval: {e}") from None

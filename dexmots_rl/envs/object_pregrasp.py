@@ -136,17 +136,33 @@ def check_object_pregrasp(model, data, scene, asset, q_hand, regions, touch_tole
     object_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies and model.geom_contype[g]]
     hand_geoms = [g for g in range(model.ngeom)
                   if model.geom_bodyid[g] not in bodies and model.geom_bodyid[g] > 0 and model.geom_contype[g]]
-    fromto = np.zeros(6)
     tips = {}
     for r in regions:
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, _body_name(asset, r.part))
         tip = sites[_finger_index(scene, r.finger)][2]
-        tips[r.finger] = min(float(mujoco.mj_geomDistance(model, data, tip, g, 0.1, fromto))
-                             for g in object_geoms if model.geom_bodyid[g] == body)
-    deepest = min(float(mujoco.mj_geomDistance(model, data, h, o, 0.05, fromto)) for h in hand_geoms
-                  for o in object_geoms)
+        tips[r.finger] = min(_geom_distance(model, data, tip, g, 0.1) for g in object_geoms
+                             if model.geom_bodyid[g] == body)
+    deepest = min(_geom_distance(model, data, h, o, 0.05) for h in hand_geoms for o in object_geoms)
     ok = all(-max_penetration <= d <= touch_tolerance for d in tips.values()) and deepest >= -max_penetration
     return ok, {"tip_distance": tips, "deepest_penetration": deepest}
+
+
+def _geom_distance(model, data, a: int, b: int, reach: float) -> float:
+    """Distance (m, negative: penetrating) of geoms ``a`` and ``b``: MuJoCo's, except a sphere against a mesh,
+    measured against the mesh itself (MuJoCo collides meshes as their convex hull, which fills a ring's hole
+    that the simulator's signed-distance grid leaves open)."""
+    import mujoco
+    import trimesh
+
+    mesh_type, sphere_type = mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_SPHERE
+    if int(model.geom_type[a]) == sphere_type and int(model.geom_type[b]) == mesh_type:
+        mid = int(model.geom_dataid[b])
+        verts = model.mesh_vert[model.mesh_vertadr[mid]: model.mesh_vertadr[mid] + model.mesh_vertnum[mid]]
+        faces = model.mesh_face[model.mesh_faceadr[mid]: model.mesh_faceadr[mid] + model.mesh_facenum[mid]]
+        centre = data.geom_xmat[b].reshape(3, 3).T @ (data.geom_xpos[a] - data.geom_xpos[b])  # in the mesh frame
+        inside = trimesh.proximity.signed_distance(trimesh.Trimesh(verts, faces, process=False), centre[None])[0]
+        return float(-inside - model.geom_size[a][0])  # trimesh: positive inside
+    return float(mujoco.mj_geomDistance(model, data, a, b, reach, np.zeros(6)))
 
 
 def _hold_control(sim, q_hand):
