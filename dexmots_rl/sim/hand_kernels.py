@@ -149,8 +149,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
 
     @wp.func
     def nearest_geom(m: Model, v: int, b: int, pl: vec3):
-        """Index of body b's geom (of variant v) nearest to point pl (body frame): the first of the smallest signed distances
-        below 1e6 m; -1 if none."""
+        """Index of body b's geom (of variant v) nearest to point pl (body frame): the first of the smallest signed
+        distances below 1e6 m; -1 if none."""
         best_d = dtype(1.0e6)
         best_g = int(-1)
         for g in range(G):

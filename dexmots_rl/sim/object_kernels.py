@@ -1,7 +1,8 @@
 """Warp kernels of the articulated object (sim/object_model.py): one substep of the object tree per world.
 
 One thread per world: the bodies' kinematics (base, then each part through its hinge or slide), the
-table's contact on each body's surface samples, the tree's mass matrix and bias forces (a sum over bodies of
+table's contact on each body's surface samples (and the sum of each body's contacts,
+sim/contact_sum_kernels.py), the tree's mass matrix and bias forces (a sum over bodies of
 J^T M J and J^T (inertial - applied) wrenches, with J each body's com/angular velocity Jacobian), the joint
 springs, dampers, Coulomb friction and range stops, and a linearly implicit solve: joint damping, springs and
 stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity).
@@ -20,6 +21,7 @@ import types
 
 import warp as wp
 
+from .contact_sum_kernels import build_sum_contacts
 from .kernel_funcs import build_funcs
 
 __all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
@@ -427,38 +429,6 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         contact_Kvw[w, b] = contact_Kvw[w, b] + Kvw
         contact_Kww[w, b] = contact_Kww[w, b] + Kww
 
-    @wp.kernel(module="unique", enable_backward=True)
-    def sum_contacts(
-        table_f: wp.array2d(dtype=vec3),  # [N, B] table contact on each body (table_contact)
-        table_t: wp.array2d(dtype=vec3),
-        hand_f: wp.array2d(dtype=vec3),  # [N, B] the hand's contact on each body
-        hand_t: wp.array2d(dtype=vec3),  # [N, B] its torque about the body's com
-        body_x: wp.array2d(dtype=vec3),  # [N, B] frames
-        body_c: wp.array2d(dtype=vec3),
-        wrench: wp.array2d(dtype=dtype),  # [N, 6] running mean so far
-        normal: wp.array(dtype=dtype),  # [N] running mean so far
-        step_normal: wp.array(dtype=dtype),  # [N] this substep's summed normal force
-        weight: dtype,  # 1 / substeps
-        total_f: wp.array2d(dtype=vec3),  # [N, B] out: table + hand
-        total_t: wp.array2d(dtype=vec3),
-        wrench_out: wp.array2d(dtype=dtype),  # [N, 6] out: + weight x the hand's wrench on the whole object
-        normal_out: wp.array(dtype=dtype),  # [N] out
-    ):
-        """Each body's total contact, and the running means over substeps of the hand's wrench on the whole
-        object (force, torque about the base origin) and of its summed normal force."""
-        w = wp.tid()
-        f_sum = vec3()
-        t_sum = vec3()
-        for b in range(B):
-            total_f[w, b] = table_f[w, b] + hand_f[w, b]
-            total_t[w, b] = table_t[w, b] + hand_t[w, b]
-            f_sum = f_sum + hand_f[w, b]
-            t_sum = t_sum + hand_t[w, b] + wp.cross(body_c[w, b] - body_x[w, 0], hand_f[w, b])
-        for c in range(3):
-            wrench_out[w, c] = wrench[w, c] + weight * f_sum[c]
-            wrench_out[w, 3 + c] = wrench[w, 3 + c] + weight * t_sum[c]
-        normal_out[w] = normal[w] + weight * step_normal[w]
-
     ns = types.SimpleNamespace(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
-                               sum_contacts=sum_contacts, vec3=vec3, mat33=mat33, dtype=dtype)
+                               sum_contacts=build_sum_contacts(dtype, B), vec3=vec3, mat33=mat33, dtype=dtype)
     return ns
