@@ -196,6 +196,7 @@ class OperateObjectEnv(DexEnv):
         self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
         if self.num_variants > 1:
             self._variant_values = self._variant_table(scene)
+            self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
         self._pregrasps = self._read_pregrasps() if c.initial == "pregrasp" else None
