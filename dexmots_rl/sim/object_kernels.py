@@ -12,6 +12,9 @@ parts' joint positions (rad or m); velocities: the base origin's linear velocity
 velocity (world frame), then the joint velocities. The solve is block elimination over [base translation (3),
 base rotation (3), joints (P)], with warp's 3x3 and P x P inverses (P <= 4). Everything is generic in the
 float type (float64 for gradient checks); loops have compile-time trip counts, so warp's adjoint is exact.
+
+The model holds every object variant of a scene (sim/object_variants.py): the arrays that may differ between
+variants have a leading variant dimension, and each kernel reads the row of its world's ``variant[w]``.
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
