@@ -197,8 +197,14 @@ def test_operate_over_several_instances():
 
     with pytest.raises(ValueError, match="task.variants"):
         make_env("operate", num_envs=2, objects=PAIR, variants=2)
-    env = make_env("operate", num_envs=4, objects=",".join(PAIR), seed=1, raw=True)
-    assert env.sim.scene.num_variants == 2
+    env = make_env("operate", num_envs=4, objects=",".join(reversed(PAIR)), seed=1, raw=True)
+    assert env.sim.scene.num_variants == 2 and env.object_asset.name == PAIR[1]
+    start = env.reset()
+    variant = start["sim", "params", "variant"].reshape(-1).long()
+    hand = start["hand", "q"]
+    for w in range(4):  # each world starts from one of its own instance's pre-grasps (plus the joint noise)
+        poses = env._variant_pregrasps[int(variant[w])]
+        assert (hand[w] - poses).abs().amax(-1).min() <= env.config.joint_noise + 1e-6
     td = env.rollout(3, break_when_any_done=False)
     assert torch.isfinite(td["next", "reward"]).all()
     variant = td["next", "sim", "params", "variant"][:, -1].reshape(-1).long()

@@ -28,7 +28,8 @@ Object variants: ``objects`` (library names or URDF paths of one topology, e.g. 
 size drawn within ``variant_scale`` of its own, seeded by ``variant_seed``; :func:`~dexmots_rl.assets.objects.
 sample_variants`) build one scene of K objects (:mod:`dexmots_rl.sim.object_variants`). Every reset draws each
 world's variant uniformly (the per-world parameter ``("sim", "params", "variant")``), its joint parameters
-around that variant's values, and its goal, rest pose, reference law and base pose from that variant. The
+around that variant's values, and its goal, rest pose, reference law, base pose and pre-grasp from that variant
+(an instance's own pre-grasps; size variants start from their instance's, found for its nominal sizes). The
 variant index is in the TensorDict's state, not in the policy's observation: a policy sees only the object's
 joint state and poses, so it can run on held-out objects whose index it never saw.
 """
@@ -199,18 +200,28 @@ class OperateObjectEnv(DexEnv):
             self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
-        self._pregrasps = self._read_pregrasps() if c.initial == "pregrasp" else None
+        self._pregrasps = None
+        if c.initial == "pregrasp":
+            # each instance's own pre-grasps (task.objects); size variants start from their instance's
+            names = object_names(c.objects) if c.objects else [c.object]
+            self._variant_pregrasps = [self._read_pregrasps(name) for name in names]
+            self._pregrasps = self._variant_pregrasps[0]
+            if len(names) == 1:
+                self._variant_pregrasps *= self.num_variants
 
-    def _read_pregrasps(self) -> torch.Tensor:
-        """The start poses [K, nu]: ``task.pregrasps`` or the library object's shipped file, checked whole."""
+    def _read_pregrasps(self, object_name: str) -> torch.Tensor:
+        """The start poses [K, nu] of ``object_name`` (``task.object`` or one of ``task.objects``):
+        ``task.pregrasps`` or the library object's shipped file, checked whole."""
         c, scene = self.config, self.sim.scene
-        library = not c.object.lower().endswith(".urdf")
+        library = not object_name.lower().endswith(".urdf")
         if c.pregrasps is None and not library:
-            raise PregraspError(f"task.object {c.object!r}: a URDF object has no shipped pre-grasps; write them with "
-                                f"dexmots-pregrasp --task operate --object {c.object} and pass task.pregrasps=<file>, "
-                                "or start with task.initial=open")
-        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(c.object)
+            raise PregraspError(f"task.object {object_name!r}: a URDF object has no shipped pre-grasps; write them "
+                                f"with dexmots-pregrasp --task operate --object {object_name} and pass "
+                                "task.pregrasps=<file>, or start with task.initial=open")
+        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(object_name)
         name = self.object_asset.name if self.object_asset is not None else None
+        if c.objects:  # one instance of several
+            name = object_name if library else None
         poses = load_pregrasps(path, self.sim.nu, "operate", scene.dof_lower[:self.sim.nu],
                                scene.dof_upper[:self.sim.nu], object_name=name)
         return torch.as_tensor(poses, dtype=self.dtype, device=self.device)
@@ -270,7 +281,8 @@ class OperateObjectEnv(DexEnv):
         noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
         start = self._open
         if self._pregrasps is not None:  # one of the pre-grasps per episode
-            start = self._pregrasps[(self._rand(n) * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
+            pick = self._rand(n)
+            start = self._pregrasps[(pick * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
         hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         obj = torch.as_tensor(self.sim.tree.q0, dtype=self.dtype, device=self.device).expand(n, -1)
         ref_index = self.sample_ref_index(n)
@@ -279,6 +291,11 @@ class OperateObjectEnv(DexEnv):
         if self.num_variants > 1:  # each world's variant's rest pose and goal
             variant = params["variant"].reshape(-1).long()
             obj, goal = self._variant_values["q0"][variant], self._variant_values["goal_value"][variant]
+            if self._pregrasps is not None:  # the pick among the world's own variant's pre-grasps
+                for k, poses in enumerate(self._variant_pregrasps):
+                    index = (pick * len(poses)).long().clamp(max=len(poses) - 1)
+                    start = torch.where((variant == k).unsqueeze(-1), poses[index], start)
+                hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         if self.reference_bank is not None:  # a plan's or a demonstration's last row
             goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
         return {
