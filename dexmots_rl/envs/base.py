@@ -310,7 +310,7 @@ class DexEnv(EnvBase):
 
     def _initial_obs(self) -> dict:
         init = self.sample_initial(self.num_envs)
-        pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"])
+        pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"], init["params"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
         zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
         obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)

@@ -10,6 +10,9 @@ part): the object's frames, the table's contact (a thread per world and body), t
 fingers' contact (a thread per world and finger sphere), the sum of each body's contacts, the object tree's solve
 and the hand's (a thread per world and finger). The launches are recorded once per trajectory of buffers and
 replayed, their adjoints in reverse for the gradient (sim/articulated_stepper.py).
+
+A scene of K object variants (sim/object_variants.py) steps each world's own variant: the per-world parameter
+``"variant"`` (the last column of the packed parameters) picks it; K = 1 has no such parameter.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 import warp as wp
+from tensordict import TensorDict
 
 from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from .articulated_stepper import ArticulatedTrajectory
@@ -44,7 +48,7 @@ class ArticulatedSimulator(ObjectSimulator):
             raise ValueError(f"adjoint_clip must be None or >= 1 (a multiple of the median world), got {adjoint_clip}")
         sub_dt = scene.timestep if dt is None else dt / substeps
         super().__init__(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps, sub_dt=sub_dt,
-                         table=table, gravity=scene.gravity)
+                         table=table, gravity=scene.gravity, variants=scene.variant_trees)
         self.scene = scene
         self.contact = contact or ContactParams()
         # Simulator's outlier-world gradient clip (a training option), applied in SimStep.backward
@@ -55,7 +59,8 @@ class ArticulatedSimulator(ObjectSimulator):
         self.nu = scene.num_hand_dofs
         self.num_bodies = self.nu + scene.tree.num_bodies
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
-                                               scene.points_per_link, scene.tree.num_bodies, scene.geoms.kind.shape[1])
+                                               scene.points_per_link, scene.tree.num_bodies,
+                                               scene.variant_geoms[0].kind.shape[1])
         self.hand_model = self._make_hand_model()
         self.palm_kernels, self.palm_model = self._make_palm()
 
@@ -69,6 +74,33 @@ class ArticulatedSimulator(ObjectSimulator):
         return self.nu + self.tree.nq
 
     @property
+    def num_variants(self) -> int:
+        return len(self.variants)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return self.scene.param_names
+
+    def default_params(self) -> TensorDict:
+        values = {n: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
+                  for n, v in self.scene.default_param_values().items()}
+        return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
+
+    def variant_of(self, params, n: int | None = None) -> torch.Tensor:
+        """[n] int32: each world's object variant in ``params`` (zeros with one variant; ``n`` defaults to the
+        simulator's worlds); raises ValueError naming ``variant`` when one is not a whole number in [0, K)."""
+        if self.num_variants == 1:
+            return torch.zeros(n or self.num_worlds, dtype=torch.int32, device=self.torch_device)
+        if "variant" not in params.keys():
+            raise ValueError(f"params lacks 'variant' (the world's object variant, 0..{self.num_variants - 1})")
+        value = params["variant"].detach().reshape(-1)
+        index = value.round()
+        if bool(((index - value).abs() > 1e-6).any() | (index < 0).any() | (index >= self.num_variants).any()):
+            raise ValueError(f"params 'variant' must hold whole numbers in [0, {self.num_variants}), got "
+                             f"{value.min().item()}..{value.max().item()}")
+        return index.to(torch.int32)
+
+    @property
     def nv(self) -> int:
         return self.nu + self.tree.nv
 
@@ -78,22 +110,26 @@ class ArticulatedSimulator(ObjectSimulator):
         if len(pos) == 0:
             return None, None
         k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, MAX_SAMPLES, len(pos))
-        wdt, c, t = self.kernels.dtype, self.table, self.tree
+        wdt, c = self.kernels.dtype, self.table
 
         def arr(x, dtype):
             return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
 
         m = k.Model()
         m.box_pos, m.box_rot, m.box_half = arr(pos, k.vec3), arr(rot, k.mat33), arr(half, k.vec3)
-        m.sample_pos, m.sample_radius = arr(t.sample_pos, k.vec3), arr(t.sample_radius, wdt)
+        m.sample_pos = arr(np.stack([v.sample_pos for v in self.variants]), k.vec3)
+        m.sample_radius = arr(np.stack([v.sample_radius for v in self.variants]), wdt)
         # the table's law: both are rigid surfaces the object's samples rest on
         m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
                                                                c.slip_velocity))
         return k, m
 
     def _make_hand_model(self):
-        s, k, c, geoms = self.scene, self.hand_kernels, self.contact, self.scene.geoms
+        s, k, c, variants = self.scene, self.hand_kernels, self.contact, self.scene.variant_geoms
         wdt = k.dtype
+
+        def geoms(field):  # [V, B, G]: every variant's geoms (one width: object_variants.pad_geoms)
+            return np.stack([getattr(g, field) for g in variants])
 
         def arr(x, dtype):
             return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
@@ -109,11 +145,16 @@ class ArticulatedSimulator(ObjectSimulator):
         m.effort = arr(s.actuator_effort, wdt)
         m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
         m.tip_pos = arr(s.tip_pos, k.vec3)
-        m.geom_kind = wp.array(geoms.kind, dtype=wp.int32, device=self.device)
-        m.geom_pos, m.geom_rot, m.geom_size = arr(geoms.pos, k.vec3), arr(geoms.rot, k.mat33), arr(geoms.size, k.vec3)
-        m.geom_grid = wp.array(geoms.grid, dtype=wp.vec4i, device=self.device)
-        m.sdf_values = arr(geoms.sdf_values, wdt)
-        m.body_bound = arr(geoms.bound(), wdt)
+        m.geom_kind = wp.array(geoms("kind"), dtype=wp.int32, device=self.device)
+        m.geom_pos, m.geom_rot = arr(geoms("pos"), k.vec3), arr(geoms("rot"), k.mat33)
+        m.geom_size = arr(geoms("size"), k.vec3)
+        # every variant's grids one after another in one array: each variant's first indices move past the earlier
+        starts = np.cumsum([0] + [len(g.sdf_values) for g in variants[:-1]])
+        grid = np.stack([g.grid + np.array([start, 0, 0, 0], dtype=np.int32) * (g.grid[..., 1:2] > 0)
+                         for g, start in zip(variants, starts)])
+        m.geom_grid = wp.array(grid.astype(np.int32), dtype=wp.vec4i, device=self.device)
+        m.sdf_values = arr(np.concatenate([g.sdf_values for g in variants]), wdt)
+        m.body_bound = arr(np.stack([g.bound() for g in variants]), wdt)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip = wdt(c.friction), wdt(c.slip_velocity)
@@ -141,11 +182,13 @@ class ArticulatedSimulator(ObjectSimulator):
             raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
         ext = control.object_wrench
         ext = self._zeros(n, 6) if ext is None else ext
+        self.variant_of(params)  # checked here: the kernels index with it
         return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp,
                                                 control.kd, self.pack_params(params), ext))
 
-    def observe(self, joint_q, joint_qd=None):
-        """Body poses [N, B, 7] (hand links, then the object's bodies) and fingertips [N, F, 3]."""
+    def observe(self, joint_q, joint_qd=None, params=None):
+        """Body poses [N, B, 7] (hand links, then the object's bodies) and fingertips [N, F, 3]; ``params``
+        (their ``"variant"``) says each world's object variant (default: 0)."""
         n, k, h, nb = joint_q.shape[0], self.kernels, self.hand_kernels, self.tree.num_bodies
         with torch.no_grad():
             q = joint_q.detach().to(self.dtype).contiguous()
@@ -153,7 +196,10 @@ class ArticulatedSimulator(ObjectSimulator):
             oqd = wp.from_torch(self._zeros(n, self.tree.nv))
             frames = [wp.zeros((n, nb), dtype=t, device=self.device) for t in (k.vec3, k.mat33, k.vec3, k.vec3,
                                                                                k.vec3)]
-            wp.launch(k.frames, dim=n, inputs=[self.model, oq, oqd], outputs=frames, device=self.device)
+            variant = (torch.zeros(n, dtype=torch.int32, device=self.torch_device) if params is None
+                       else self.variant_of(params, n))
+            wp.launch(k.frames, dim=n, inputs=[self.model, wp.from_torch(variant), oq, oqd], outputs=frames,
+                      device=self.device)
             pose, tips = self._zeros(n, self.num_bodies * 7), self._zeros(n, self.scene.num_fingers * 3)
             wp.launch(h.observe, dim=n, inputs=[self.hand_model, hq, frames[0], frames[1]],
                       outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)

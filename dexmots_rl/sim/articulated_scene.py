@@ -2,7 +2,8 @@
 
 :func:`~dexmots_rl.sim.load_scene` builds an :class:`ArticulatedScene` when body ``object`` of an MJCF is a tree
 (a base with moving parts, :mod:`.object_model`); :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`
-simulates it.
+simulates it. :func:`~dexmots_rl.sim.object_variants.load_variants` builds one from several MJCF files of the
+same hand with objects of one topology (the object's variants; each world simulates one).
 """
 
 from __future__ import annotations
@@ -121,13 +122,24 @@ def _descends(m, b: int, root: int) -> bool:
 class ArticulatedScene:
     """A fixed-mount hand (``hand``: the hand fields of :class:`~dexmots_rl.sim.SceneModel`, by name) and an
     articulated object (``tree``, ``geoms``); ``palm``: (centres [K, 3], rotations [K, 3, 3], half sizes [K, 3]),
-    world frame, of the palm's boxes that collide with the object (none: the palm is drawn only)."""
+    world frame, of the palm's boxes that collide with the object (none: the palm is drawn only).
+
+    ``variant_trees``, ``variant_geoms``, ``variant_paths``: the object's variants (K of one topology, from one
+    file each; :mod:`.object_variants`); ``tree``, ``geoms`` and ``path`` are variant 0's. One file: K = 1."""
 
     path: str
     hand: dict
     tree: ObjectTree
     geoms: ObjectGeoms
     palm: tuple
+    variant_trees: list = dataclasses.field(default_factory=list)
+    variant_geoms: list = dataclasses.field(default_factory=list)
+    variant_paths: list = dataclasses.field(default_factory=list)
+
+    def __post_init__(self):
+        self.variant_trees = self.variant_trees or [self.tree]
+        self.variant_geoms = self.variant_geoms or [self.geoms]
+        self.variant_paths = self.variant_paths or [self.path]
 
     def __getattr__(self, name):  # the hand's fields read like SceneModel's (scene.num_fingers, ...)
         hand = self.__dict__.get("hand")
@@ -150,11 +162,21 @@ class ArticulatedScene:
         return self.tree.nv
 
     @property
+    def num_variants(self) -> int:
+        return len(self.variant_trees)
+
+    @property
     def param_names(self) -> tuple[str, ...]:
-        return self.tree.param_names
+        """The joints' named parameters, then ``"variant"`` (the world's object variant) with K > 1."""
+        return self.tree.param_names + (("variant",) if self.num_variants > 1 else ())
 
     def default_param_values(self) -> dict[str, float]:
-        return self.tree.default_param_values()
+        return {**self.tree.default_param_values(), **({"variant": 0.0} if self.num_variants > 1 else {})}
+
+    @property
+    def variant_q0(self) -> np.ndarray:
+        """[K, nq] each variant's initial object coordinates."""
+        return np.stack([t.q0 for t in self.variant_trees])
 
     @property
     def object_q0(self) -> np.ndarray:

@@ -61,8 +61,10 @@ class ArticulatedTrajectory:
                         new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
         self.final_frames = [new(k.vec3, nb, n), new(k.mat33, nb, n), new(k.vec3, nb, n), new(k.vec3, nb, n),
                              new(k.vec3, nb, n)]
+        # each world's object variant this step (the packed parameters' last column with K > 1; else zeros)
+        self.variant = torch.zeros(n, dtype=torch.int32, device=sim.torch_device)
         self._warp = (self.frames + self.table + self.palm + self.hand + self.total + self.scratch
-                      + self.final_frames)
+                      + self.final_frames + [wp.from_torch(self.variant)])
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
         self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
@@ -88,6 +90,7 @@ class ArticulatedTrajectory:
             cut = 24 + len(self.palm)
             frames, table, palm = a[14:19], a[19:24], a[24:cut]
             hand, total, scratch, final = a[cut:cut + 5], a[cut + 5:cut + 7], a[cut + 7:cut + 15], a[cut + 15:cut + 20]
+            variant = a[-1][lo:hi]
 
             def rows(arr, s):  # substep s's rows of this block
                 return arr[s * n + lo: s * n + hi]
@@ -100,27 +103,27 @@ class ArticulatedTrajectory:
                 state = [rows(x, s) for x in (hq, hqd, oq, oqd)]
                 nxt = [rows(x, s + 1) for x in (hq, hqd, oq, oqd)]
                 tot = [rows(x, s) for x in total]
-                out.append((k.frames, dim, [model, state[2], state[3], *fr]))
+                out.append((k.frames, dim, [model, variant, state[2], state[3], *fr]))
                 if k.table:
-                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, *fr, dt, *tb]))
+                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, *tb]))
                 if palm:
                     with_palm = [rows(x, s) for x in palm]
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
-                                [palm_model, *fr, dt, *tb, *with_palm]))
+                                [palm_model, variant, *fr, dt, *tb, *with_palm]))
                     tb = with_palm
                 out.append((h.finger_contact, (dim, num_points),
-                            [hand_model, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
+                            [hand_model, variant, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
                              only_touching]))
                 out.append((k.sum_contacts, dim, [tb[0], tb[1], hand_f, hand_t, fr[0], fr[2], rows(wrench, s),
                                                   rows(normal, s), step_normal, weight, *tot,
                                                   rows(wrench, s + 1), rows(normal, s + 1)]))
-                out.append((k.substep, dim, [model, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
+                out.append((k.substep, dim, [model, variant, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
                                              *[rows(x, s) for x in scratch], nxt[2], nxt[3]]))
                 out.append((h.hand_substep, (dim, sim.scene.num_fingers),
                             [hand_model, state[0], state[1], *block[:4], gen, dt, nxt[0], nxt[1]]))
             last = [rows(x, self.steps) for x in (hq, oq, oqd)]
             fin = [x[lo:hi] for x in final]
-            out.append((k.frames, dim, [model, last[1], last[2], *fin]))
+            out.append((k.frames, dim, [model, variant, last[1], last[2], *fin]))
             out.append((h.observe, dim, [hand_model, last[0], fin[0], fin[1], pose[lo:hi], tips[lo:hi]]))
             return out
 
@@ -150,6 +153,8 @@ class ArticulatedTrajectory:
             for buf, t in zip(self.controls[:5], controls[:5]):
                 buf.copy_(t)
             self.controls[5][:, :6].copy_(controls[5])  # the planner's wrench acts on the base; the parts get none
+            if self.sim.num_variants > 1:  # "variant" is the last packed parameter (ArticulatedScene.param_names)
+                self.variant.copy_(controls[4][:, -1].round())
         for arr in self.accumulated:
             arr.zero_()
 

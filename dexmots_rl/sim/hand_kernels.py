@@ -69,14 +69,15 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         point_pos: wp.array(dtype=vec3)  # [F*J*P] m, link frame
         point_radius: wp.array(dtype=dtype)  # [F*J*P] m (0: padding)
         tip_pos: wp.array(dtype=vec3)  # [F] m, last link's frame
-        geom_kind: wp.array2d(dtype=wp.int32)  # [B, G] GEOM_* (GEOM_NONE: padding)
-        geom_pos: wp.array2d(dtype=vec3)  # [B, G] m, body frame
-        geom_rot: wp.array2d(dtype=mat33)  # [B, G] geom -> body
-        geom_size: wp.array2d(dtype=vec3)  # [B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder:
+        # the object's geoms: V object variants (sim/object_variants.py), world w reads variant[w]'s
+        geom_kind: wp.array3d(dtype=wp.int32)  # [V, B, G] GEOM_* (GEOM_NONE: padding)
+        geom_pos: wp.array3d(dtype=vec3)  # [V, B, G] m, body frame
+        geom_rot: wp.array3d(dtype=mat33)  # [V, B, G] geom -> body
+        geom_size: wp.array3d(dtype=vec3)  # [V, B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder:
         # (r, half length)
-        geom_grid: wp.array2d(dtype=wp.vec4i)  # [B, G] sdf: (first index in sdf_values, points along x, y, z)
-        sdf_values: wp.array(dtype=dtype)  # every sdf geom's grid (m, negative inside), x-major, one after another
-        body_bound: wp.array(dtype=dtype)  # [B] m: a sphere about the body origin holding all its geoms (with margin)
+        geom_grid: wp.array3d(dtype=wp.vec4i)  # [V, B, G] sdf: (first index in sdf_values, points along x, y, z)
+        sdf_values: wp.array(dtype=dtype)  # every variant's sdf grids (m, negative inside), x-major, one after another
+        body_bound: wp.array2d(dtype=dtype)  # [V, B] m: a sphere about the body origin holding its geoms (with margin)
         gravity: vec3
         ke: dtype  # N/m: contact stiffness
         kd: dtype  # s/m: Hunt-Crossley damping
@@ -159,38 +160,39 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         return vec4(d, n[0], n[1], n[2])
 
     @wp.func
-    def nearest_geom(m: Model, b: int, pl: vec3, reach: dtype):
-        """Index of body b's geom nearest to point pl (body frame): the first of the smallest signed distances
-        below ``reach`` (m; a sphere farther than that from every geom feels nothing); -1 if none."""
+    def nearest_geom(m: Model, v: int, b: int, pl: vec3, reach: dtype):
+        """Index of body b's geom (of variant v) nearest to point pl (body frame): the first of the smallest
+        signed distances below ``reach`` (m; a sphere farther than that from every geom feels nothing); -1 if none."""
         best_d = reach
         best_g = int(-1)
         for g in range(G):
-            kind = m.geom_kind[b, g]
+            kind = m.geom_kind[v, b, g]
             if kind != GEOM_NONE:
-                Rg = m.geom_rot[b, g]
-                pg = wp.transpose(Rg) * (pl - m.geom_pos[b, g])
-                size = m.geom_size[b, g]
+                Rg = m.geom_rot[v, b, g]
+                pg = wp.transpose(Rg) * (pl - m.geom_pos[v, b, g])
+                size = m.geom_size[v, b, g]
                 d = best_d
                 if kind == GEOM_SDF:
                     # the mesh lies in the grid's box shrunk by the pad: the distance to that box is a lower
                     # bound of the mesh's, and a grid lookup is only needed where it is below the best so far
                     pad = dtype(SDF_PAD)
                     if box_distance(size - vec3(pad, pad, pad), pg)[0] < best_d:
-                        d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
+                        d = geom_distance(kind, size, m.geom_grid[v, b, g], m.sdf_values, pg)[0]
                 else:
-                    d = geom_distance(kind, size, m.geom_grid[b, g], m.sdf_values, pg)[0]
+                    d = geom_distance(kind, size, m.geom_grid[v, b, g], m.sdf_values, pg)[0]
                 if d < best_d:
                     best_d = d
                     best_g = g
         return best_g
 
     @wp.func_grad(nearest_geom)
-    def adj_nearest_geom(m: Model, b: int, pl: vec3, reach: dtype, adj_ret: int):
+    def adj_nearest_geom(m: Model, v: int, b: int, pl: vec3, reach: dtype, adj_ret: int):
         pass  # an index: nothing to differentiate (the reverse pass skips the G distances' adjoints)
 
     @wp.kernel(module="unique", enable_backward=True)
     def finger_contact(
         m: Model,
+        variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
         hq: wp.array2d(dtype=dtype),  # [N, F*J] rad
         hqd: wp.array2d(dtype=dtype),  # [N, F*J] rad/s
         body_x: wp.array2d(dtype=vec3),  # [N, B] object frames (object_kernels.frames)
@@ -241,19 +243,20 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 qdf = qdf + hqd[w, f * J + k] * unit_j(k)
         vp = Jp * qdf
         gen_f = vecJ()
+        v = variant[w]
         for b in range(B):
             xb = body_x[w, b]
             # no geom of body b within the cutoff: skip its distances (their result would go unused)
-            if wp.length(p - xb) < m.body_bound[b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
+            if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
                 Rb = body_R[w, b]
                 pl = wp.transpose(Rb) * (p - xb)
                 best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
                 # found without an adjoint; only the nearest geom's distance has one, and only within the cutoff
-                g = nearest_geom(m, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
+                g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
                 if g >= 0:
-                    Rg = m.geom_rot[b, g]
-                    dn = geom_distance(m.geom_kind[b, g], m.geom_size[b, g], m.geom_grid[b, g], m.sdf_values,
-                                       wp.transpose(Rg) * (pl - m.geom_pos[b, g]))
+                    Rg = m.geom_rot[v, b, g]
+                    dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g], m.sdf_values,
+                                       wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
                     nb = Rg * vec3(dn[1], dn[2], dn[3])
                     best = vec4(dn[0], nb[0], nb[1], nb[2])
                 pen = rad - best[0]

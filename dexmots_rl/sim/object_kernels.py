@@ -1,7 +1,8 @@
 """Warp kernels of the articulated object (sim/object_model.py): one substep of the object tree per world.
 
 One thread per world: the bodies' kinematics (base, then each part through its hinge or slide), the
-table's contact on each body's surface samples, the tree's mass matrix and bias forces (a sum over bodies of
+table's contact on each body's surface samples (and the sum of each body's contacts,
+sim/contact_sum_kernels.py), the tree's mass matrix and bias forces (a sum over bodies of
 J^T M J and J^T (inertial - applied) wrenches, with J each body's com/angular velocity Jacobian), the joint
 springs, dampers, Coulomb friction and range stops, and a linearly implicit solve: joint damping, springs and
 stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity).
@@ -11,6 +12,9 @@ parts' joint positions (rad or m); velocities: the base origin's linear velocity
 velocity (world frame), then the joint velocities. The solve is block elimination over [base translation (3),
 base rotation (3), joints (P)], with warp's 3x3 and P x P inverses (P <= 4). Everything is generic in the
 float type (float64 for gradient checks); loops have compile-time trip counts, so warp's adjoint is exact.
+
+The model holds every object variant of a scene (sim/object_variants.py): the arrays that may differ between
+variants have a leading variant dimension, and each kernel reads the row of its world's ``variant[w]``.
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -20,6 +24,7 @@ import types
 
 import warp as wp
 
+from .contact_sum_kernels import build_sum_contacts
 from .kernel_funcs import build_funcs
 
 __all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
@@ -47,27 +52,29 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     mat3P = wp.types.matrix((3, NPV), dtype)
     matPP = wp.types.matrix((NPV, NPV), dtype)
 
+    # the leading V of an array is the object variant (sim/object_variants.py): a world reads variant[w]'s row;
+    # the topology (parent, joint kinds, ancestor) is every variant's
     @wp.struct
     class Model:
         parent: wp.array(dtype=wp.int32)  # [B]
-        off_pos: wp.array(dtype=vec3)  # [B] m, parent frame (the base: world frame, fixed base only)
-        off_rot: wp.array(dtype=mat33)  # [B]
+        off_pos: wp.array2d(dtype=vec3)  # [V, B] m, parent frame (the base: world frame, fixed base only)
+        off_rot: wp.array2d(dtype=mat33)  # [V, B]
         jkind: wp.array(dtype=wp.int32)  # [NP] 0 hinge, 1 slide
-        jaxis: wp.array(dtype=vec3)  # [NP] part frame, unit
-        janchor: wp.array(dtype=vec3)  # [NP] m, part frame
-        jlower: wp.array(dtype=dtype)  # [NP] rad or m
-        jupper: wp.array(dtype=dtype)
-        limit_ke: wp.array(dtype=dtype)  # [NP] N m/rad or N/m: the range stops' stiffness
-        limit_width: wp.array(dtype=dtype)  # [NP] rad or m: depth over which a stop stiffens (smooth)
-        armature: wp.array(dtype=dtype)  # [NP]
+        jaxis: wp.array2d(dtype=vec3)  # [V, NP] part frame, unit
+        janchor: wp.array2d(dtype=vec3)  # [V, NP] m, part frame
+        jlower: wp.array2d(dtype=dtype)  # [V, NP] rad or m
+        jupper: wp.array2d(dtype=dtype)
+        limit_ke: wp.array2d(dtype=dtype)  # [V, NP] N m/rad or N/m: the range stops' stiffness
+        limit_width: wp.array2d(dtype=dtype)  # [V, NP] rad or m: depth over which a stop stiffens (smooth)
+        armature: wp.array2d(dtype=dtype)  # [V, NP]
         ancestor: wp.array2d(dtype=dtype)  # [B, NP] 1 where joint k moves body b
-        mass: wp.array(dtype=dtype)  # [B] kg
-        com: wp.array(dtype=vec3)  # [B] m, body frame
-        inertia: wp.array(dtype=mat33)  # [B] kg m^2 about the com, body frame
-        sample_pos: wp.array2d(dtype=vec3)  # [B, S] m, body frame
-        sample_radius: wp.array2d(dtype=dtype)  # [B, S] m (< 0: padding)
+        mass: wp.array2d(dtype=dtype)  # [V, B] kg
+        com: wp.array2d(dtype=vec3)  # [V, B] m, body frame
+        inertia: wp.array2d(dtype=mat33)  # [V, B] kg m^2 about the com, body frame
+        sample_pos: wp.array3d(dtype=vec3)  # [V, B, S] m, body frame
+        sample_radius: wp.array3d(dtype=dtype)  # [V, B, S] m (< 0: padding)
+        table_z: wp.array(dtype=dtype)  # [V] m
         gravity: vec3
-        table_z: dtype  # m
         ke: dtype  # N/m per sample: the table's penalty stiffness
         beta: dtype  # 1/m: softplus sharpness of the penalty
         kd: dtype  # s/m: Hunt-Crossley damping of the normal force
@@ -79,11 +86,11 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         funcs.limit_slope
 
     @wp.func
-    def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
-        """The base's origin, rotation, origin velocity and angular velocity (world) in world w: read from the
-        state for a free base, the model's placement (at rest) for a fixed one."""
-        x0 = m.off_pos[0]
-        R0 = m.off_rot[0]
+    def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int, v: int):
+        """The base's origin, rotation, origin velocity and angular velocity (world) in world w (of variant v):
+        read from the state for a free base, the model's placement (at rest) for a fixed one."""
+        x0 = m.off_pos[v, 0]
+        R0 = m.off_rot[v, 0]
         v0 = vec3()
         w0 = vec3()
         if wp.static(FREE):
@@ -114,6 +121,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     @wp.kernel(module="unique", enable_backward=True)
     def substep(
         m: Model,
+        variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
         q: wp.array2d(dtype=dtype),  # [N, nq] in
         qd: wp.array2d(dtype=dtype),  # [N, nv] in
         params: wp.array2d(dtype=dtype),  # [N, 4 * NP] per joint: damping, friction, stiffness, rest
@@ -136,6 +144,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         qd_out: wp.array2d(dtype=dtype),  # [N, nv]
     ):
         w = wp.tid()
+        v = variant[w]
         qo = 7 * int(FREE)  # first joint coordinate
         vo = 6 * int(FREE)  # first joint velocity
         # joint state (and its velocity) as vectors, read once
@@ -145,7 +154,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             qj = qj + q[w, qo + k] * unit_p(k)
             qdj = qdj + qd[w, vo + k] * unit_p(k)
         # the base
-        x0, R0, v0, w0 = base_state(m, q, qd, w)
+        x0, R0, v0, w0 = base_state(m, q, qd, w, v)
         # block sums of the mass matrix [T R P] and of the right-hand side
         M11 = mat33()
         M12 = mat33()
@@ -172,28 +181,28 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
                 alp = body_al[w, p]
                 cp = body_c[w, p]
                 acp = body_ac[w, p]
-                R = Rp * m.off_rot[b]
-                a = R * m.jaxis[k]
-                o = xp + Rp * m.off_pos[b] + R * m.janchor[k]
+                R = Rp * m.off_rot[v, b]
+                a = R * m.jaxis[v, k]
+                o = xp + Rp * m.off_pos[v, b] + R * m.janchor[v, k]
                 joint_a[w, k] = a
                 joint_o[w, k] = o
                 a_o = acp + wp.cross(alp, o - cp) + wp.cross(omp, wp.cross(omp, o - cp))
                 if m.jkind[k] == 0:
-                    R = R * axis_angle(m.jaxis[k], qj[k])
-                    x = o - R * m.janchor[k]
+                    R = R * axis_angle(m.jaxis[v, k], qj[k])
+                    x = o - R * m.janchor[v, k]
                     om = omp + a * qdj[k]
                     al = alp + wp.cross(omp, a * qdj[k])
                 else:
-                    x = o - R * m.janchor[k] + a * qj[k]
+                    x = o - R * m.janchor[v, k] + a * qj[k]
                     om = omp
                     al = alp
-                c = x + R * m.com[b]
+                c = x + R * m.com[v, b]
                 if m.jkind[k] == 0:
                     ac = a_o + wp.cross(al, c - o) + wp.cross(om, wp.cross(om, c - o))
                 else:
                     ac = acp + wp.cross(alp, c - cp) + wp.cross(omp, wp.cross(omp, c - cp)) + dtype(2.0) * wp.cross(omp, a * qdj[k])
             else:
-                c = x + R * m.com[0]
+                c = x + R * m.com[v, 0]
                 ac = wp.cross(om, wp.cross(om, c - x0))
             body_x[w, b] = x
             body_R[w, b] = R
@@ -216,8 +225,8 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             f_app = vec3(ext[w, 6 * b + 0], ext[w, 6 * b + 1], ext[w, 6 * b + 2])
             t_app = vec3(ext[w, 6 * b + 3], ext[w, 6 * b + 4], ext[w, 6 * b + 5])
             # the body's spatial inertia at its com, plus the contacts' implicit viscous part (table_contact)
-            mb = m.mass[b]
-            Iw = R * m.inertia[b] * wp.transpose(R)
+            mb = m.mass[v, b]
+            Iw = R * m.inertia[v, b] * wp.transpose(R)
             Kvv = mb * wp.identity(n=3, dtype=dtype) + contact_Kvv[w, b]
             Kvw = contact_Kvw[w, b]
             Kww = Iw + contact_Kww[w, b]
@@ -249,15 +258,15 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             spring = params[w, 4 * k + 2]
             rest = params[w, 4 * k + 3]
             qp = qj[k] + dt * qdj[k]
-            lo = m.jlower[k] - qp
-            hi = qp - m.jupper[k]
+            lo = m.jlower[v, k] - qp
+            hi = qp - m.jupper[v, k]
             force = -damp * qdj[k] - fric * wp.tanh(qdj[k] / dtype(JOINT_FRICTION_VELOCITY)) - spring * (qp - rest)
-            width = m.limit_width[k]
-            force = force + m.limit_ke[k] * (limit_ramp(lo, width) - limit_ramp(hi, width))
-            stiff = spring + m.limit_ke[k] * (limit_slope(lo, width) + limit_slope(hi, width))
+            width = m.limit_width[v, k]
+            force = force + m.limit_ke[v, k] * (limit_ramp(lo, width) - limit_ramp(hi, width))
+            stiff = spring + m.limit_ke[v, k] * (limit_slope(lo, width) + limit_slope(hi, width))
             r3 = r3 + force * unit_p(k)
             e = unit_p(k)
-            M33 = M33 + (m.armature[k] + dt * damp + dt * dt * stiff) * wp.outer(e, e)
+            M33 = M33 + (m.armature[v, k] + dt * damp + dt * dt * stiff) * wp.outer(e, e)
         # block elimination: [T R P] with T = base translation, R = base rotation, P = joints
         qdd_p = vecP()
         if wp.static(FREE):
@@ -298,6 +307,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     @wp.kernel(module="unique", enable_backward=True)
     def frames(
         m: Model,
+        variant: wp.array(dtype=wp.int32),  # [N]
         q: wp.array2d(dtype=dtype),  # [N, nq]
         qd: wp.array2d(dtype=dtype),  # [N, nv]
         body_x: wp.array2d(dtype=vec3),  # [N, B] out: body origins (m, world)
@@ -308,13 +318,14 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     ):
         """Every body's pose and velocity (what the contacts read at the start of a substep)."""
         w = wp.tid()
+        v = variant[w]
         qo = 7 * int(FREE)
         vo = 6 * int(FREE)
-        x0, R0, v0, w0 = base_state(m, q, qd, w)
+        x0, R0, v0, w0 = base_state(m, q, qd, w, v)
         body_x[w, 0] = x0
         body_R[w, 0] = R0
-        body_c[w, 0] = x0 + R0 * m.com[0]
-        body_v[w, 0] = v0 + wp.cross(w0, R0 * m.com[0])
+        body_c[w, 0] = x0 + R0 * m.com[v, 0]
+        body_v[w, 0] = v0 + wp.cross(w0, R0 * m.com[v, 0])
         body_w[w, 0] = w0
         for b in range(1, B):
             k = b - 1
@@ -323,22 +334,22 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             Rp = body_R[w, p]
             omp = body_w[w, p]
             vo_p = body_v[w, p] + wp.cross(omp, xp - body_c[w, p])  # velocity of the parent's origin
-            R = Rp * m.off_rot[b]
-            a = R * m.jaxis[k]
-            o = xp + Rp * m.off_pos[b] + R * m.janchor[k]
+            R = Rp * m.off_rot[v, b]
+            a = R * m.jaxis[v, k]
+            o = xp + Rp * m.off_pos[v, b] + R * m.janchor[v, k]
             v_o = vo_p + wp.cross(omp, o - xp)
             qk = q[w, qo + k]
             qdk = qd[w, vo + k]
-            x = o - R * m.janchor[k]
+            x = o - R * m.janchor[v, k]
             om = omp
             if m.jkind[k] == 0:
-                R = R * axis_angle(m.jaxis[k], qk)
-                x = o - R * m.janchor[k]
+                R = R * axis_angle(m.jaxis[v, k], qk)
+                x = o - R * m.janchor[v, k]
                 om = omp + a * qdk
             else:
                 x = x + a * qk
                 v_o = v_o + a * qdk + wp.cross(omp, a * qk)
-            c = x + R * m.com[b]
+            c = x + R * m.com[v, b]
             if m.jkind[k] == 0:
                 v_c = v_o + wp.cross(om, c - o)
             else:
@@ -352,6 +363,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     @wp.kernel(module="unique", enable_backward=True)
     def table_contact(
         m: Model,
+        variant: wp.array(dtype=wp.int32),  # [N]
         body_x: wp.array2d(dtype=vec3),  # [N, B] (frames)
         body_R: wp.array2d(dtype=mat33),
         body_c: wp.array2d(dtype=vec3),
@@ -369,6 +381,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         handed to the solve as a matrix (linearly implicit: the object holds on the table like static friction
         at any slip velocity, and a stiff damper cannot overshoot and pump energy into a bounce)."""
         w, b = wp.tid()
+        v = variant[w]
         x = body_x[w, b]
         R = body_R[w, b]
         c = body_c[w, b]
@@ -379,15 +392,16 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         Kvv = mat33()
         Kvw = mat33()
         Kww = mat33()
+        table_z = m.table_z[v]
         Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
                    dtype(0.0), dtype(0.0), dtype(0.0))
         Nz = mat33(dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0),
                    dtype(0.0), dtype(0.0), dtype(1.0))
         for s in range(S):
-            rad = m.sample_radius[b, s]
+            rad = m.sample_radius[v, b, s]
             if rad >= dtype(0.0):
-                ps = x + R * m.sample_pos[b, s]
-                pen = m.table_z + rad - ps[2]
+                ps = x + R * m.sample_pos[v, b, s]
+                pen = table_z + rad - ps[2]
                 if pen > dtype(-12.0) / m.beta:
                     r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
                     vp = vc + wp.cross(om, r)
@@ -418,38 +432,6 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         contact_Kvw[w, b] = contact_Kvw[w, b] + Kvw
         contact_Kww[w, b] = contact_Kww[w, b] + Kww
 
-    @wp.kernel(module="unique", enable_backward=True)
-    def sum_contacts(
-        table_f: wp.array2d(dtype=vec3),  # [N, B] table contact on each body (table_contact)
-        table_t: wp.array2d(dtype=vec3),
-        hand_f: wp.array2d(dtype=vec3),  # [N, B] the hand's contact on each body
-        hand_t: wp.array2d(dtype=vec3),  # [N, B] its torque about the body's com
-        body_x: wp.array2d(dtype=vec3),  # [N, B] frames
-        body_c: wp.array2d(dtype=vec3),
-        wrench: wp.array2d(dtype=dtype),  # [N, 6] running mean so far
-        normal: wp.array(dtype=dtype),  # [N] running mean so far
-        step_normal: wp.array(dtype=dtype),  # [N] this substep's summed normal force
-        weight: dtype,  # 1 / substeps
-        total_f: wp.array2d(dtype=vec3),  # [N, B] out: table + hand
-        total_t: wp.array2d(dtype=vec3),
-        wrench_out: wp.array2d(dtype=dtype),  # [N, 6] out: + weight x the hand's wrench on the whole object
-        normal_out: wp.array(dtype=dtype),  # [N] out
-    ):
-        """Each body's total contact, and the running means over substeps of the hand's wrench on the whole
-        object (force, torque about the base origin) and of its summed normal force."""
-        w = wp.tid()
-        f_sum = vec3()
-        t_sum = vec3()
-        for b in range(B):
-            total_f[w, b] = table_f[w, b] + hand_f[w, b]
-            total_t[w, b] = table_t[w, b] + hand_t[w, b]
-            f_sum = f_sum + hand_f[w, b]
-            t_sum = t_sum + hand_t[w, b] + wp.cross(body_c[w, b] - body_x[w, 0], hand_f[w, b])
-        for c in range(3):
-            wrench_out[w, c] = wrench[w, c] + weight * f_sum[c]
-            wrench_out[w, 3 + c] = wrench[w, 3 + c] + weight * t_sum[c]
-        normal_out[w] = normal[w] + weight * step_normal[w]
-
     ns = types.SimpleNamespace(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
-                               sum_contacts=sum_contacts, vec3=vec3, mat33=mat33, dtype=dtype)
+                               sum_contacts=build_sum_contacts(dtype, B), vec3=vec3, mat33=mat33, dtype=dtype)
     return ns

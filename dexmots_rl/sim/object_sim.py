@@ -6,6 +6,10 @@ contact, or a planner's wrench). A step is ``substeps`` launches of one fused ke
 with gradients on, the launches are recorded on a ``wp.Tape`` with one set of arrays per substep (a
 taped launch must not overwrite what an earlier one read) and :class:`ObjectStep` replays them backwards.
 
+Object variants (sim/object_variants.py): given ``variants`` (trees of one topology), the model's arrays hold
+every variant and world ``w`` simulates variant ``variant[w]`` (:attr:`ObjectSimulator.variant`, int32 [N],
+zeros by default; read at each step).
+
 Example:
     >>> from dexmots_rl.assets.objects import load_object
     >>> from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
@@ -75,10 +79,11 @@ class ObjectSimulator:
 
     def __init__(self, tree: ObjectTree, num_worlds: int, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  substeps: int = 16, sub_dt: float = 1.0 / 960.0, table: TableContact | None = None,
-                 gravity=(0.0, 0.0, -9.81)):
+                 gravity=(0.0, 0.0, -9.81), variants: list[ObjectTree] | None = None):
         if num_worlds <= 0:
             raise ValueError(f"num_worlds must be positive, got {num_worlds}")
         self.tree, self.num_worlds, self.substeps, self.sub_dt = tree, num_worlds, substeps, sub_dt
+        self.variants = list(variants) if variants else [tree]  # the object's variants (variant 0 is ``tree``)
         self.dt = sub_dt * substeps
         self.dtype = dtype
         self.torch_device = check_device(device)
@@ -87,6 +92,8 @@ class ObjectSimulator:
         self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free, MAX_SAMPLES,
                                             tree.table_height is not None)
         self.model = self._make_model(np.asarray(gravity, dtype=np.float64))
+        # [N] int32: the variant each world simulates (see the module docstring)
+        self.variant = torch.zeros(num_worlds, dtype=torch.int32, device=self.torch_device)
 
     @property
     def nq(self) -> int:
@@ -104,29 +111,35 @@ class ObjectSimulator:
         t, k = self.tree, self.kernels
         wdt = _wp_dtype(self.dtype)
 
-        def arr(x, dtype, shape=None):
-            x = np.asarray(x, dtype=np.float64)
-            return wp.array(x if shape is None else x.reshape(shape), dtype=dtype, device=self.device)
+        def arr(x, dtype):
+            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
 
+        def per_variant(field):  # [V, ...]: the field of every variant, stacked
+            return np.stack([field(tree) for tree in self.variants])
+
+        pad = (lambda a, shape: a if t.num_parts else np.zeros(shape))
         m = k.Model()
         m.parent = wp.array(t.parent.astype(np.int32), dtype=wp.int32, device=self.device)
-        m.off_pos, m.off_rot = arr(t.offset_pos, k.vec3), arr(t.offset_rot, k.mat33)
-        pad = (lambda a, shape: a if t.num_parts else np.zeros(shape))
+        m.off_pos = arr(per_variant(lambda v: v.offset_pos), k.vec3)
+        m.off_rot = arr(per_variant(lambda v: v.offset_rot), k.mat33)
         m.jkind = wp.array(pad(t.joint_kind, (1,)).astype(np.int32), dtype=wp.int32, device=self.device)
-        m.jaxis, m.janchor = arr(pad(t.joint_axis, (1, 3)), k.vec3), arr(pad(t.joint_anchor, (1, 3)), k.vec3)
-        rng = pad(t.joint_range, (1, 2))
-        m.jlower, m.jupper = arr(rng[:, 0], wdt), arr(rng[:, 1], wdt)
+        m.jaxis = arr(per_variant(lambda v: pad(v.joint_axis, (1, 3))), k.vec3)
+        m.janchor = arr(per_variant(lambda v: pad(v.joint_anchor, (1, 3))), k.vec3)
+        rng = per_variant(lambda v: pad(v.joint_range, (1, 2)))
+        m.jlower, m.jupper = arr(rng[..., 0], wdt), arr(rng[..., 1], wdt)
         # each stop as stiff as a LIMIT_FREQUENCY oscillator on the joint's own inertia (at the initial pose)
-        m.limit_ke = arr(pad(t.joint_inertia, (1,)) * LIMIT_FREQUENCY**2, wdt)
+        m.limit_ke = arr(per_variant(lambda v: pad(v.joint_inertia, (1,))) * LIMIT_FREQUENCY**2, wdt)
         # a stop stiffens over LIMIT_WIDTH, or over 5 % of a short range (a pump's 12 mm stroke)
-        span = pad(t.joint_range[:, 1] - t.joint_range[:, 0], (1,)) if t.num_parts else np.ones(1)
+        span = rng[..., 1] - rng[..., 0] if t.num_parts else np.ones((len(self.variants), 1))
         m.limit_width = arr(np.minimum(LIMIT_WIDTH, 0.05 * span), wdt)
-        m.armature = arr(pad(t.armature, (1,)), wdt)
+        m.armature = arr(per_variant(lambda v: pad(v.armature, (1,))), wdt)
         m.ancestor = arr(t.ancestor if t.num_parts else np.zeros((t.num_bodies, 1)), wdt)
-        m.mass, m.com, m.inertia = arr(t.mass, wdt), arr(t.com, k.vec3), arr(t.inertia, k.mat33)
-        m.sample_pos, m.sample_radius = arr(t.sample_pos, k.vec3), arr(t.sample_radius, wdt)
+        m.mass, m.com = arr(per_variant(lambda v: v.mass), wdt), arr(per_variant(lambda v: v.com), k.vec3)
+        m.inertia = arr(per_variant(lambda v: v.inertia), k.mat33)
+        m.sample_pos = arr(per_variant(lambda v: v.sample_pos), k.vec3)
+        m.sample_radius = arr(per_variant(lambda v: v.sample_radius), wdt)
         m.gravity = k.vec3(*gravity)
-        m.table_z = wdt(t.table_height or 0.0)
+        m.table_z = arr([v.table_height or 0.0 for v in self.variants], wdt)
         c = self.table
         m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
                                                                c.slip_velocity))
@@ -173,6 +186,7 @@ class ObjectSimulator:
         wqd = wp.from_torch(qd.contiguous(), requires_grad=grad)
         wpar = wp.from_torch(params.contiguous(), requires_grad=grad)
         wext = wp.from_torch(ext.contiguous(), requires_grad=grad)
+        variant = wp.from_torch(self.variant.clone())  # this step's (a later change must not reach its replay)
         nb, nparts = self.tree.num_bodies, max(self.tree.num_parts, 1)
         wdt = _wp_dtype(self.dtype)
         states = [(wq, wqd)]
@@ -184,14 +198,14 @@ class ObjectSimulator:
             # every substep its own arrays: a taped launch must not overwrite what an earlier one read
             q_in, qd_in = states[-1]
             frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
-            wp.launch(k.frames, dim=n, inputs=[self.model, q_in, qd_in], outputs=frames, device=self.device)
+            wp.launch(k.frames, dim=n, inputs=[self.model, variant, q_in, qd_in], outputs=frames, device=self.device)
             contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
             if k.table:
-                wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, *frames, wdt(self.sub_dt)],
+                wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, variant, *frames, wdt(self.sub_dt)],
                           outputs=contact, device=self.device)
             q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
             wp.launch(k.substep, dim=n, device=self.device,
-                      inputs=[self.model, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),
+                      inputs=[self.model, variant, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),
                               new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb),
                               new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)],
                       outputs=[q_out, qd_out])

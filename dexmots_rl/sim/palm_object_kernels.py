@@ -33,8 +33,8 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         box_pos: wp.array(dtype=vec3)  # [NB] m, world: box centres
         box_rot: wp.array(dtype=mat33)  # [NB] box -> world
         box_half: wp.array(dtype=vec3)  # [NB] m: half sizes
-        sample_pos: wp.array2d(dtype=vec3)  # [B, S] m, body frame
-        sample_radius: wp.array2d(dtype=dtype)  # [B, S] m (< 0: padding)
+        sample_pos: wp.array3d(dtype=vec3)  # [V, B, S] m, body frame, per object variant
+        sample_radius: wp.array3d(dtype=dtype)  # [V, B, S] m (< 0: padding)
         ke: dtype  # N/m per sample
         beta: dtype  # 1/m
         kd: dtype  # s/m
@@ -47,6 +47,7 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
     @wp.kernel(module="unique", enable_backward=True)
     def palm_contact(
         m: Model,
+        variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
         body_x: wp.array2d(dtype=vec3),  # [N, B] object frames (object_kernels.frames)
         body_R: wp.array2d(dtype=mat33),
         body_c: wp.array2d(dtype=vec3),
@@ -65,6 +66,7 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         out_Kww: wp.array2d(dtype=mat33),
     ):
         w, b = wp.tid()
+        v = variant[w]
         x = body_x[w, b]
         R = body_R[w, b]
         c = body_c[w, b]
@@ -77,9 +79,9 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         Kww = mat33()
         eye = wp.identity(n=3, dtype=dtype)
         for s in range(S):
-            rad = m.sample_radius[b, s]
+            rad = m.sample_radius[v, b, s]
             if rad >= dtype(0.0):
-                ps = x + R * m.sample_pos[b, s]
+                ps = x + R * m.sample_pos[v, b, s]
                 for k in range(NB):
                     Rb = m.box_rot[k]
                     dn = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))

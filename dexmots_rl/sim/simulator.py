@@ -298,8 +298,9 @@ class Simulator:
         return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp, control.kd,
                                         self.pack_params(params), ext))
 
-    def observe(self, joint_q, joint_qd=None):
-        """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping."""
+    def observe(self, joint_q, joint_qd=None, params=None):
+        """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping (``params``: unused, the
+        scene has one object; :meth:`ArticulatedSimulator.observe` reads its variant there)."""
         joint_qd = self._zeros(joint_q.shape[0], self.nv) if joint_qd is None else joint_qd
         q = wp.from_torch(joint_q.detach().to(self.dtype).contiguous())
         qd = wp.from_torch(joint_qd.detach().to(self.dtype).contiguous())

@@ -2,6 +2,7 @@
 
 Every instance is its generator called with fixed parameters (no random draw), so it is the same object
 on every machine. :func:`load_object` takes a library name or the path of a URDF file (PartNet-Mobility layout).
+:func:`sample_variants` draws size variants of an instance (one topology: a scene of object variants).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Callable
 from .description import ObjectAsset, ObjectError
 from .generators import GENERATORS, PARAMS
 
-__all__ = ["INSTANCES", "list_objects", "load_object"]
+__all__ = ["INSTANCES", "list_objects", "load_object", "sample_variants"]
 
 # name -> (class, parameter overrides); the first instance of a class uses the class's defaults
 INSTANCES: dict[str, tuple[str, dict]] = {
@@ -70,3 +71,27 @@ def load_object(name_or_path: str | Path, **urdf_options) -> ObjectAsset:
     generator: Callable[..., ObjectAsset] = GENERATORS[object_class]
     params = dataclasses.replace(PARAMS[object_class](), **overrides)
     return generator(params, name=text)
+
+
+def sample_variants(name: str, k: int, rng=None, size_scale: float = 0.1) -> list[ObjectAsset]:
+    """``k`` size variants of the library instance ``name`` (or of a class's defaults, given a class name): variant
+    0 is the instance itself, named ``name``; variant i > 0 (named ``<name>_size<i>``) has each size parameter
+    drawn within ``size_scale`` (relative) of the instance's (``Params.sample_sizes``), the rest kept. Every
+    variant has the instance's topology (bodies and joints), so one scene holds them all
+    (:func:`dexmots_rl.sim.object_variants.load_variants`). ``rng``: a seed or a numpy Generator."""
+    from .generators.common import make_rng
+
+    if name in INSTANCES:
+        object_class, overrides = INSTANCES[name]
+    elif name in PARAMS:
+        object_class, overrides = name, {}
+    else:
+        raise ObjectError(f"sample_variants: unknown object or class {name!r}; objects: {sorted(INSTANCES)}, "
+                          f"classes: {sorted(PARAMS)}")
+    if not isinstance(k, int) or k < 1:
+        raise ObjectError(f"sample_variants: k must be a positive integer, got {k!r}")
+    rng = make_rng(rng)
+    base = dataclasses.replace(PARAMS[object_class](), **overrides)
+    params = [base] + [base.sample_sizes(rng, size_scale) for _ in range(k - 1)]
+    generator = GENERATORS[object_class]
+    return [generator(p, name=name if i == 0 else f"{name}_size{i}") for i, p in enumerate(params)]

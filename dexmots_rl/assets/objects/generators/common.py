@@ -81,6 +81,20 @@ class Params:
             values[f.name] = float(np.clip(getattr(self, f.name) * rng.uniform(1 - spread, 1 + spread), low, high))
         return dataclasses.replace(self, **values)
 
+    def sample_sizes(self, rng=None, scale: float = 0.1) -> "Params":
+        """These values with every size (kind ``"size"``, in m) drawn by a factor in [1 - scale, 1 + scale],
+        clipped to its range; masses, angles, counts and the joints' feel are kept (object variants of one
+        topology whose physical parameters are randomised elsewhere, by name)."""
+        if not 0.0 <= scale <= 0.5:
+            raise ObjectError(f"{type(self).__name__}.sample_sizes: scale must be in [0, 0.5], got {scale!r}")
+        rng = make_rng(rng)
+        values = {}
+        for f in dataclasses.fields(self):
+            if f.metadata["kind"] == "size":
+                low, high = f.metadata["range"]
+                values[f.name] = float(np.clip(getattr(self, f.name) * rng.uniform(1 - scale, 1 + scale), low, high))
+        return dataclasses.replace(self, **values)
+
 
 # ------------------------------------------------------------------------------------------------ geoms
 def matrix_quat(rotation: np.ndarray) -> tuple[float, float, float, float]:

@@ -22,6 +22,16 @@ the object's nominal spring, damping and friction need. Reward: ``λ_pose`` trac
 fingertips' closeness to the operated part (``λ_f``), the action penalty (``λ_act``), and the base's stillness
 (``lambda_base`` exp(-shift / max_base_shift - tilt / max_base_tilt)). The wrench reward term is not computed
 for these objects yet (the goal window still carries the reference torque).
+
+Object variants: ``objects`` (library names or URDF paths of one topology, e.g. a class's instances) or
+``variants`` >= 2 (``variants`` size variants of ``object``: the object itself and ``variants - 1`` with every
+size drawn within ``variant_scale`` of its own, seeded by ``variant_seed``; :func:`~dexmots_rl.assets.objects.
+sample_variants`) build one scene of K objects (:mod:`dexmots_rl.sim.object_variants`). Every reset draws each
+world's variant uniformly (the per-world parameter ``("sim", "params", "variant")``), its joint parameters
+around that variant's values, and its goal, rest pose, reference law, base pose and pre-grasp from that variant
+(an instance's own pre-grasps; size variants start from their instance's, found for its nominal sizes). The
+variant index is in the TensorDict's state, not in the policy's observation: a policy sees only the object's
+joint state and poses, so it can run on held-out objects whose index it never saw.
 """
 
 from __future__ import annotations
@@ -71,6 +81,12 @@ class OperateObjectConfig(TaskConfig):
     max_base_shift: float = 0.02  # m: a free base moved farther fails
     max_base_tilt: float = 0.2  # rad: a free base tilted more fails
     param_scale: float = dataclasses.field(default=0.3, metadata=rule(ge=0, lt=1))  # relative spread of the draws
+    # object variants (see the module docstring): library names or URDF paths of one topology, replacing
+    # ``object`` (from Python a list; a comma-separated string from the command line), or size variants of it
+    objects: Optional[str] = dataclasses.field(default=None, metadata=rule(objects=True))
+    variants: int = dataclasses.field(default=0, metadata=rule(ge=0))  # 0 or 1: the object alone
+    variant_scale: float = dataclasses.field(default=0.1, metadata=rule(ge=0, le=0.5))  # relative size spread
+    variant_seed: int = dataclasses.field(default=0, metadata=rule(ge=0))  # seeds the size draws (one scene everywhere)
     joint_noise: float = dataclasses.field(default=0.02, metadata=rule(ge=0))  # rad, on the start pose
     ramp_steps: int = 40
     max_episode_steps: int = 150
@@ -90,22 +106,46 @@ def scene_dir(object_name: str) -> Path:
     return root / "scenes" / f"{Path(object_name).stem}-{digest}"
 
 
-def build_scene(object_name: str):
-    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
-    and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none)."""
-    from ....assets.hand_scene import hand_object_scene_xml
-    from ....assets.objects import load_object
-    from ....sim import load_scene
+def object_names(objects) -> list[str]:
+    """``task.objects`` as a list of names: a list, or one string of names separated by commas or spaces."""
+    if isinstance(objects, str):
+        return [name for name in objects.replace(",", " ").split() if name]
+    return [str(name) for name in objects]
 
-    asset = load_object(object_name)
-    folder = scene_dir(object_name)
+
+def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale: float = 0.1,
+                variant_seed: int = 0):
+    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
+    and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none). With
+    ``objects`` (names or URDF paths) or ``variants`` >= 2 (size variants of ``object_name``), a scene of those
+    object variants (the module docstring); the object returned is variant 0's."""
+    from ....assets.objects import load_object, sample_variants
+    from ....sim import load_scene
+    from ....sim.object_variants import load_variants
+
+    if objects:
+        names = object_names(objects)
+        assets, keys = [load_object(name) for name in names], names
+    elif variants >= 2:
+        assets = sample_variants(object_name, variants, variant_seed, variant_scale)
+        keys = [object_name] + [f"{a.name}-seed{variant_seed}-scale{variant_scale!r}" for a in assets[1:]]
+    else:
+        asset = load_object(object_name)
+        return load_scene(_write_scene(asset, object_name)), asset
+    return load_variants([_write_scene(asset, key) for asset, key in zip(assets, keys)]), assets[0]
+
+
+def _write_scene(asset, key: str) -> Path:
+    from ....assets.hand_scene import hand_object_scene_xml
+
+    folder = scene_dir(key)
     folder.mkdir(parents=True, exist_ok=True)
     xml = hand_object_scene_xml(asset, folder)
     with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".xml", delete=False) as tmp:
         tmp.write(xml)
     path = folder / "scene.xml"
     os.replace(tmp.name, path)
-    return load_scene(path), asset
+    return path
 
 
 def _pose(pos, rot) -> list[float]:
@@ -131,18 +171,19 @@ class OperateObjectEnv(DexEnv):
 
     @classmethod
     def task_scene(cls, config):
-        return build_scene(config.object)[0]
+        return _build(config)[0]
 
     def __init__(self, config: OperateObjectConfig, scene=None, **kwargs):
         self.object_asset = None
         if scene is None:
-            scene, self.object_asset = build_scene(config.object)
+            scene, self.object_asset = _build(config)
         tree = scene.tree
         name = config.joint or (self.object_asset.operated_joint if self.object_asset else "") or tree.joint_names[0]
         if name not in tree.joint_names:
             raise ValueError(f"task.joint: {name!r} is not a joint of {config.object!r}; its joints: {tree.joint_names}")
         self.joint_index = tree.joint_names.index(name)
         self.joint_name = name
+        self.num_variants = scene.num_variants
         super().__init__(config, scene=scene, **kwargs)
         c, dev, dt = self.config, self.device, self.dtype
         lo, hi = (float(v) for v in tree.joint_range[self.joint_index])
@@ -157,45 +198,113 @@ class OperateObjectEnv(DexEnv):
                                       dtype=dt, device=dev)
         j = self.joint_index
         self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
+        if self.num_variants > 1:
+            self._variant_values = self._variant_table(scene)
+            self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
-        self._pregrasps = self._read_pregrasps() if c.initial == "pregrasp" else None
+        self._pregrasps = None
+        if c.initial == "pregrasp":
+            # each instance's own pre-grasps (task.objects); size variants start from their instance's
+            names = object_names(c.objects) if c.objects else [c.object]
+            self._variant_pregrasps = [self._read_pregrasps(name) for name in names]
+            self._pregrasps = self._variant_pregrasps[0]
+            if len(names) == 1:
+                self._variant_pregrasps *= self.num_variants
 
-    def _read_pregrasps(self) -> torch.Tensor:
-        """The start poses [K, nu]: ``task.pregrasps`` or the library object's shipped file, checked whole."""
+    def _read_pregrasps(self, object_name: str) -> torch.Tensor:
+        """The start poses [K, nu] of ``object_name`` (``task.object`` or one of ``task.objects``):
+        ``task.pregrasps`` or the library object's shipped file, checked whole."""
         c, scene = self.config, self.sim.scene
-        library = not c.object.lower().endswith(".urdf")
+        library = not object_name.lower().endswith(".urdf")
         if c.pregrasps is None and not library:
-            raise PregraspError(f"task.object {c.object!r}: a URDF object has no shipped pre-grasps; write them with "
-                                f"dexmots-pregrasp --task operate --object {c.object} and pass task.pregrasps=<file>, "
-                                "or start with task.initial=open")
-        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(c.object)
+            raise PregraspError(f"task.object {object_name!r}: a URDF object has no shipped pre-grasps; write them "
+                                f"with dexmots-pregrasp --task operate --object {object_name} and pass "
+                                "task.pregrasps=<file>, or start with task.initial=open")
+        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(object_name)
         name = self.object_asset.name if self.object_asset is not None else None
+        if c.objects:  # one instance of several
+            name = object_name if library else None
         poses = load_pregrasps(path, self.sim.nu, "operate", scene.dof_lower[:self.sim.nu],
                                scene.dof_upper[:self.sim.nu], object_name=name)
         return torch.as_tensor(poses, dtype=self.dtype, device=self.device)
 
+    def _variant_table(self, scene) -> dict:
+        """Per variant [K, ...]: what :meth:`_per_world` looks up (variant 0's are the attributes themselves)."""
+        c, j = self.config, self.joint_index
+        rows = {"joint_rest": [], "joint_span": [], "goal_value": [], "_base0": [], "_nominal": []}
+        for tree in scene.variant_trees:
+            lo, hi = (float(v) for v in tree.joint_range[j])
+            rest = float(tree.q0[7 * tree.free + j])
+            far = hi if hi - rest >= rest - lo else lo
+            rows["joint_rest"].append([rest])
+            rows["joint_span"].append([hi - lo])
+            rows["goal_value"].append([rest + c.goal_fraction * (far - rest)])
+            rows["_base0"].append(list(tree.q0[:7]) if tree.free else _pose(tree.offset_pos[0], tree.offset_rot[0]))
+            rows["_nominal"].append([tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j],
+                                     tree.joint_rest[j]])
+        table = {k: torch.as_tensor(v, dtype=self.dtype, device=self.device) for k, v in rows.items()}
+        table["_nominal"] = tuple(table["_nominal"].T.unsqueeze(-1))  # 4 x [K, 1]
+        table["q0"] = torch.as_tensor(scene.variant_q0, dtype=self.dtype, device=self.device)
+        table["params"] = {name: torch.as_tensor([[t.default_param_values()[name]] for t in scene.variant_trees],
+                                                 dtype=self.dtype, device=self.device)
+                           for name in scene.tree.param_names}
+        return table
+
+    def world_variant(self, source) -> torch.Tensor:
+        """[N] int64: each world's object variant, from ``source``'s ``("sim", "params", "variant")``."""
+        return source[("sim", "params", "variant")].reshape(-1).round().long()
+
+    def _per_world(self, name: str, source):
+        """Attribute ``name`` of each world's variant ([N, ...] tensors) with K > 1; else the attribute itself."""
+        if self.num_variants == 1:
+            return getattr(self, name)
+        table, variant = self._variant_values[name], self.world_variant(source)
+        return tuple(x[variant] for x in table) if isinstance(table, tuple) else table[variant]
+
     def _param_ranges(self) -> dict:
         s = self.config.param_scale
         return {name: (v * (1 - s), v * (1 + s)) for name, v in self.sim.scene.default_param_values().items()
-                if not name.endswith("/rest")}
+                if not name.endswith("/rest") and name != "variant"}
+
+    def sample_params(self, n: int) -> dict[str, torch.Tensor]:
+        """With K > 1 variants: each world's variant (uniform), its joint parameters within ``param_scale`` of
+        that variant's (its springs' rest kept); one object: :meth:`DexEnv.sample_params`."""
+        if self.num_variants == 1:
+            return super().sample_params(n)
+        variant = torch.randint(0, self.num_variants, (n,), generator=self.generator, device=self.device)
+        s, out = self.config.param_scale, {"variant": variant.to(self.dtype).unsqueeze(-1)}
+        for name, values in self._variant_values["params"].items():
+            nominal = values[variant]
+            out[name] = nominal if name.endswith("/rest") else nominal * (1 - s + 2 * s * self._rand(n, 1))
+        return out
 
     # ----------------------------------------------------------------------------------- episodes
     def sample_initial(self, n: int) -> dict:
         noise = self.config.joint_noise * (2 * self._rand(n, self.sim.nu) - 1)
         start = self._open
         if self._pregrasps is not None:  # one of the pre-grasps per episode
-            start = self._pregrasps[(self._rand(n) * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
+            pick = self._rand(n)
+            start = self._pregrasps[(pick * len(self._pregrasps)).long().clamp(max=len(self._pregrasps) - 1)]
         hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         obj = torch.as_tensor(self.sim.tree.q0, dtype=self.dtype, device=self.device).expand(n, -1)
         ref_index = self.sample_ref_index(n)
         goal = torch.full((n, 1), self.goal_value, dtype=self.dtype, device=self.device)
+        params = self.sample_params(n)
+        if self.num_variants > 1:  # each world's variant's rest pose and goal
+            variant = params["variant"].reshape(-1).long()
+            obj, goal = self._variant_values["q0"][variant], self._variant_values["goal_value"][variant]
+            if self._pregrasps is not None:  # the pick among the world's own variant's pre-grasps
+                for k, poses in enumerate(self._variant_pregrasps):
+                    index = (pick * len(poses)).long().clamp(max=len(poses) - 1)
+                    start = torch.where((variant == k).unsqueeze(-1), poses[index], start)
+                hand = torch.minimum(torch.maximum(start + noise, self._lower), self._upper)
         if self.reference_bank is not None:  # a plan's or a demonstration's last row
             goal = self.reference_bank["joint_q"][ref_index.squeeze(-1), -1]
         return {
             "joint_q": torch.cat([hand, obj], -1),
             "joint_qd": torch.zeros(n, self.sim.nv, dtype=self.dtype, device=self.device),
-            "params": self.sample_params(n),
+            "params": params,
             "goal": goal,
             "ref_index": ref_index,
         }
@@ -230,11 +339,14 @@ class OperateObjectEnv(DexEnv):
             ref = lookup(self.reference_bank, td[("task", "ref_index")], steps)
             return ref["joint_q"], ref["joint_torque"]
         goal = td[("task", "goal")]
+        rest, nominal = self._per_world("joint_rest", td), self._per_world("_nominal", td)
+        if self.num_variants > 1:  # [N, 1, 1]: each world's over the steps
+            rest, nominal = rest.unsqueeze(1), tuple(x.unsqueeze(1) for x in nominal)
         frac = (steps.to(self.dtype) / self.config.ramp_steps).clamp(max=1.0).unsqueeze(-1)
-        angle = self.joint_rest + (goal.unsqueeze(1) - self.joint_rest) * frac
-        speed = (goal.unsqueeze(1) - self.joint_rest) / (self.config.ramp_steps * self.sim.dt)
+        angle = rest + (goal.unsqueeze(1) - rest) * frac
+        speed = (goal.unsqueeze(1) - rest) / (self.config.ramp_steps * self.sim.dt)
         moving = ((steps >= 1) & (steps <= self.config.ramp_steps)).unsqueeze(-1)
-        return angle, part_torque(torch.where(moving, speed, 0.0), angle, self._nominal)
+        return angle, part_torque(torch.where(moving, speed, 0.0), angle, nominal)
 
     def demo_reference(self, demo: dict):
         """The operated joint moving as demonstrated, the base held where it stands."""
@@ -246,7 +358,8 @@ class OperateObjectEnv(DexEnv):
         if self.reference_bank is not None:
             return lookup(self.reference_bank, td[("task", "ref_index")], steps)
         angle, torque = self.joint_reference(td, steps)
-        pose = self._base0.expand(*angle.shape[:2], 7)
+        base0 = self._per_world("_base0", td)
+        pose = (base0 if base0.dim() == 1 else base0.unsqueeze(1)).expand(*angle.shape[:2], 7)
         wrench = torch.zeros(*angle.shape[:2], 6, dtype=self.dtype, device=self.device)
         return TensorDict({"pose": pose, "joint_q": angle, "wrench": wrench, "joint_torque": torque},
                           batch_size=steps.shape)
@@ -265,15 +378,17 @@ class OperateObjectEnv(DexEnv):
         if not self.sim.tree.free:
             zero = torch.zeros_like(pose[:, :1])
             return zero, zero
-        shift = (pose[:, :3] - self._base0[:3]).norm(dim=-1, keepdim=True)
-        return shift, quat_angle(self._base0[3:].expand_as(pose[:, 3:]), pose[:, 3:])  # finite gradient at 0
+        base0 = self._per_world("_base0", obs)
+        shift = (pose[:, :3] - base0[..., :3]).norm(dim=-1, keepdim=True)
+        return shift, quat_angle(base0[..., 3:].expand_as(pose[:, 3:]), pose[:, 3:])  # finite gradient at 0
 
     def task_reward(self, obs: dict, task: dict, action: torch.Tensor) -> tuple[torch.Tensor, dict]:
         ref_angle, _ = self.joint_reference(task, task[("task", "step")])
         c = self.config
         shift, tilt = self.base_motion(obs)
         terms = {
-            "pose": angle_tracking_reward(self.achieved_goal(obs), ref_angle[:, 0], c.pose_scale * self.joint_span),
+            "pose": angle_tracking_reward(self.achieved_goal(obs), ref_angle[:, 0],
+                                          c.pose_scale * self._per_world("joint_span", obs)),
             "action": action_penalty(action.to(self.dtype), self._act_weights),
             "fingertip": fingertip_reward(obs[("fingertips", "pos")], obs[("object", "pose")][:, :3],
                                           c.fingertip_scale),
@@ -287,8 +402,14 @@ class OperateObjectEnv(DexEnv):
     def task_success(self, obs: dict, goal: torch.Tensor) -> torch.Tensor:
         c = self.config
         shift, tilt = self.base_motion(obs)
-        reached = (self.achieved_goal(obs) - goal).abs() < c.success_band * self.joint_span
+        reached = (self.achieved_goal(obs) - goal).abs() < c.success_band * self._per_world("joint_span", obs)
         return reached & (shift < c.max_base_shift) & (tilt < c.max_base_tilt)
+
+
+def _build(config: OperateObjectConfig):
+    if config.objects and config.variants > 1:
+        raise ValueError("task.variants: size variants are drawn of task.object; with task.objects give 0")
+    return build_scene(config.object, config.objects, config.variants, config.variant_scale, config.variant_seed)
 
 
 register_task("operate", OperateObjectEnv, OperateObjectConfig)
