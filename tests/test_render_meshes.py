@@ -117,7 +117,8 @@ def test_a_partnet_urdf_object_is_drawn(tmp_path):
     """A PartNet-Mobility-style folder: its links' OBJ pieces (open ones too) are drawn, each part in view."""
     from partnet_fixtures import stapler
 
-    env = make_env("operate", num_envs=1, object=str(stapler(tmp_path)), differentiable=False, seed=0, obs="rgb")
+    env = make_env("operate", num_envs=1, object=str(stapler(tmp_path)), differentiable=False, seed=0, obs="rgb",
+                   initial="open")
     td = env.reset()
     r, sim = env.transform[-1].renderer, env.base_env.sim
     _, lab = r.render_state(sim, td["sim", "joint_q"], labels=True)

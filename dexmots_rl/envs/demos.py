@@ -41,20 +41,12 @@ import torch
 
 from ..quaternions import slerp
 from ..trajectories import PoseWrenchTrajectory, TrajectoryFormatError, wrenches_from_poses
+from ..trajectories.joint_law import FRICTION_VELOCITY, part_torque
 
 __all__ = ["FRICTION_VELOCITY", "SHIPPED", "demo_path", "demo_trajectory", "part_torque", "read_demo", "resample"]
 
-FRICTION_VELOCITY = 0.05  # rad/s (or m/s): the simulator's smoothing of joint Coulomb friction
 SHIPPED = "shipped"  # task.demo=shipped: the demonstration the package ships for the task
 MAX_ROWS = 100_000  # a demonstration longer than this (~28 min at 60 Hz) is not an episode's motion
-
-
-def part_torque(speed: torch.Tensor, angle: torch.Tensor, nominal) -> torch.Tensor:
-    """The generalised force (N m or N) a sprung, damped joint with Coulomb friction needs to move at
-    ``speed`` through ``angle``: ``d ω + f tanh(ω / 0.05) + k (θ - θ_rest)``; ``nominal`` is ``(damping,
-    friction, stiffness, rest)`` (the analytic references' law: inertia neglected, quasi-static)."""
-    damping, friction, stiffness, rest = nominal
-    return damping * speed + friction * torch.tanh(speed / FRICTION_VELOCITY) + stiffness * (angle - rest)
 
 
 def demo_path(task: str, demo):

@@ -64,7 +64,7 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
     or ``[N]`` for N plans at once) in ``steps`` env steps; ``lr`` in N m (or N) per iteration, decayed
     linearly to 5 % (default: a tenth of the largest quasi-static force, at least 1e-3); ``params``: named
     joint parameters (``"<joint>/damping"``, ...) per plan."""
-    from ..envs.demos import part_torque
+    from .joint_law import part_torque
     from ..sim.object_sim import ObjectSimulator
 
     if steps < 1 or iterations < 0:
