@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dexmots_rl.assets.hand_scene import hand_object_scene_xml
-from dexmots_rl.assets.objects import load_object
+from dexmots_rl.assets.objects import ObjectError, list_objects, load_object, object_split
 from dexmots_rl.sim import AssetError, load_scene
 from dexmots_rl.sim.articulated import ArticulatedSimulator
 from dexmots_rl.sim.object_variants import load_variants
@@ -211,3 +211,32 @@ def test_operate_over_several_instances():
     goals = env._variant_values["goal_value"]
     assert goals[0] != goals[1]  # spray_bottle_b pulls its trigger less far
     torch.testing.assert_close(td["next", "task", "goal"][:, -1], goals[variant])
+
+
+@pytest.mark.parametrize("object_class", sorted({cls for _, cls in list_objects()}))
+def test_training_and_heldout_instances_never_overlap(object_class):
+    split = object_split(object_class)
+    instances = [name for name, cls in list_objects() if cls == object_class]
+    assert split["train"] and split["heldout"]
+    assert not set(split["train"]) & set(split["heldout"])
+    assert sorted(split["train"] + split["heldout"]) == sorted(instances)
+    assert object_split(instances[0]) == split  # an instance names its class
+    # each part is one scene of variants: the class's instances share their topology
+    with tempfile.TemporaryDirectory() as folder:
+        paths = _paths(instances, folder)
+        assert load_variants(paths).num_variants == len(instances)
+
+
+def test_operate_on_a_split():
+    from dexmots_rl.envs import make_env
+    from dexmots_rl.envs.tasks.allegro.operate_object import object_names
+
+    assert object_names("heldout", "valve_a") == object_split("valve")["heldout"]
+    assert object_names("train", "valve_c") == ["valve_a", "valve_b"]
+    with pytest.raises(ValueError, match="task.objects=train"):
+        object_names("train", "/data/tool/mobility.urdf")
+    with pytest.raises(ObjectError, match="unknown class"):
+        object_split("kettle")
+    env = make_env("valve", num_envs=2, objects="heldout", seed=0, raw=True)
+    assert env.object_asset.name == "valve_c" and env.sim.scene.num_variants == 1
+    assert torch.isfinite(env.rollout(2)["next", "reward"]).all()

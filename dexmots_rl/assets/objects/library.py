@@ -14,7 +14,7 @@ from typing import Callable
 from .description import ObjectAsset, ObjectError
 from .generators import GENERATORS, PARAMS
 
-__all__ = ["INSTANCES", "list_objects", "load_object", "sample_variants"]
+__all__ = ["INSTANCES", "SPLITS", "list_objects", "load_object", "object_split", "sample_variants"]
 
 # name -> (class, parameter overrides); the first instance of a class uses the class's defaults
 INSTANCES: dict[str, tuple[str, dict]] = {
@@ -52,6 +52,24 @@ INSTANCES: dict[str, tuple[str, dict]] = {
 def list_objects() -> list[tuple[str, str]]:
     """``[(name, class), ...]`` of every shipped object, in a stable order."""
     return [(name, object_class) for name, (object_class, _) in INSTANCES.items()]
+
+
+# the two parts of a class's instances: policies train on one and are evaluated on both (object_split)
+SPLITS = ("train", "heldout")
+
+
+def object_split(object_class: str) -> dict[str, list[str]]:
+    """The library instances of ``object_class`` (or of the class of the instance named ``object_class``) in two
+    disjoint parts, ``{"train": [...], "heldout": [...]}``: the last instance of the class (in
+    :data:`INSTANCES`' order) is held out and the others train. Every class has at least two instances, so each
+    part is non-empty; instances of one class share their topology, so either part is one scene of variants."""
+    if object_class in INSTANCES:
+        object_class = INSTANCES[object_class][0]
+    names = [name for name, (cls, _) in INSTANCES.items() if cls == object_class]
+    if not names:
+        classes = sorted({cls for cls, _ in INSTANCES.values()})
+        raise ObjectError(f"object_split: unknown class or object {object_class!r}; classes: {classes}")
+    return {"train": names[:-1], "heldout": names[-1:]}
 
 
 def load_object(name_or_path: str | Path, **urdf_options) -> ObjectAsset:

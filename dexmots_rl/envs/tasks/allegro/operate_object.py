@@ -23,7 +23,8 @@ fingertips' closeness to the operated part (``λ_f``), the action penalty (``λ_
 (``lambda_base`` exp(-shift / max_base_shift - tilt / max_base_tilt)). The wrench reward term is not computed
 for these objects yet (the goal window still carries the reference torque).
 
-Object variants: ``objects`` (library names or URDF paths of one topology, e.g. a class's instances) or
+Object variants: ``objects`` (library names or URDF paths of one topology, e.g. a class's instances, or
+``train`` / ``heldout``: that part of the library split of ``object``'s class) or
 ``variants`` >= 2 (``variants`` size variants of ``object``: the object itself and ``variants - 1`` with every
 size drawn within ``variant_scale`` of its own, seeded by ``variant_seed``; :func:`~dexmots_rl.assets.objects.
 sample_variants`) build one scene of K objects (:mod:`dexmots_rl.sim.object_variants`). Every reset draws each
@@ -106,11 +107,20 @@ def scene_dir(object_name: str) -> Path:
     return root / "scenes" / f"{Path(object_name).stem}-{digest}"
 
 
-def object_names(objects) -> list[str]:
-    """``task.objects`` as a list of names: a list, or one string of names separated by commas or spaces."""
-    if isinstance(objects, str):
-        return [name for name in objects.replace(",", " ").split() if name]
-    return [str(name) for name in objects]
+def object_names(objects, object_name: str | None = None) -> list[str]:
+    """``task.objects`` as a list of names: a list, or one string of names separated by commas or spaces; the
+    keyword ``train`` or ``heldout`` stands for that part of the library split of ``object_name``'s class
+    (:func:`~dexmots_rl.assets.objects.object_split`)."""
+    from ....assets.objects import INSTANCES, SPLITS, object_split
+
+    names = ([name for name in objects.replace(",", " ").split() if name] if isinstance(objects, str)
+             else [str(name) for name in objects])
+    if len(names) == 1 and names[0] in SPLITS:
+        if object_name is None or object_name not in INSTANCES:
+            raise ValueError(f"task.objects={names[0]}: the split is of a library class, and task.object "
+                             f"{object_name!r} is not a library object (one of {sorted(INSTANCES)})")
+        return object_split(object_name)[names[0]]
+    return names
 
 
 def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale: float = 0.1,
@@ -124,7 +134,7 @@ def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale
     from ....sim.object_variants import load_variants
 
     if objects:
-        names = object_names(objects)
+        names = object_names(objects, object_name)
         assets, keys = [load_object(name) for name in names], names
     elif variants >= 2:
         assets = sample_variants(object_name, variants, variant_seed, variant_scale)
@@ -206,7 +216,7 @@ class OperateObjectEnv(DexEnv):
         self._pregrasps = None
         if c.initial == "pregrasp":
             # each instance's own pre-grasps (task.objects); size variants start from their instance's
-            names = object_names(c.objects) if c.objects else [c.object]
+            names = object_names(c.objects, c.object) if c.objects else [c.object]
             self._variant_pregrasps = [self._read_pregrasps(name) for name in names]
             self._pregrasps = self._variant_pregrasps[0]
             if len(names) == 1:
