@@ -67,8 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
     common(p, grad_bench_tasks())
     p.add_argument("--object", default=None,
-                   help="the operated object of operate or a tool task (a library name or a URDF with pre-grasps; "
-                        "default: the task's)")
+                   help="the library object operate or a tool task operates (default: the task's own)")
     p.add_argument("--horizons", type=int, nargs="+", default=[1, 8, 32])
     p.add_argument("--eps", type=float, default=1e-6)
     p.add_argument("--num-entries", type=int, default=16, help="action entries checked per row")

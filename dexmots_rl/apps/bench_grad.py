@@ -218,7 +218,7 @@ def run_grad(task: str = "screw_claw", horizons=(1, 8, 32), eps: float = 1e-6, n
                   "velocity": "(omega_H-omega*)^2 + 0.01 |qd_hand,H|^2"
                               + (" + (|v_H|/s)^2 + (|w_H|/r)^2" if base else "")},
               "goal_angle": target.goal, "goal_speed": target.goal_speed, "rows": rows}
-    if hasattr(env.config, "object"):  # an operated object: which one, its joint, its base
-        result.update(object=env.config.object, joint=getattr(env, "joint_name", None),
+    if target.part_body is not None:  # an articulated object: which one, its operated joint, its base
+        result.update(object=getattr(env.config, "object", None), joint=env.sim.tree.joint_names[poses.joint],
                       free_base=bool(env.sim.tree.free), base_tolerance=target.base_tolerance)
     return result
