@@ -40,6 +40,25 @@ def test_grad_bench_rows_agree_with_finite_differences():
     assert "goal grad_growth_at_longest_horizon" in format_table(result)
 
 
+@pytest.mark.parametrize("task, object_name, free_base", [("spray_bottle", None, True), ("operate", "drawer_a", False)])
+def test_grad_bench_on_a_tool_task_agrees_through_contact(task, object_name, free_base):
+    """The articulated scenes: from a squeezed pre-grasp (contact on every step) and from the hand extended
+    clear (none), a free base's pose in the loss."""
+    from dexmots_rl.apps.bench_setup import bench_tasks, grad_bench_tasks
+
+    assert "spray_bottle" in grad_bench_tasks() and "spray_bottle" not in bench_tasks()  # no throughput poses
+    argv = ["grad", "--task", task, "--horizons", "1", "2", "--draws", "1", "--num-entries", "4", "--quiet"]
+    result = run(argv + (["--object", object_name] if object_name else []))
+    assert result["free_base"] == free_base and result["object"] == (object_name or "spray_bottle_a")
+    assert (result["base_tolerance"] is not None) == free_base
+    assert len(result["rows"]) == 8
+    for row in result["rows"]:
+        assert row["median_rel_err"] < 1e-4 and row["max_rel_err"] < 1e-2, row
+        assert row["grad_norm"] > 0, row
+        assert (row["contact_fraction"] == 1.0) if row["contact"] else (row["contact_fraction"] == 0.0), row
+    assert result["goals_met"]["median_rel_err_with_contact"]
+
+
 def test_train_bench_over_seeds_reports_each_run_and_the_spread(tmp_path):
     tiny = ["task.num_envs=4", "algo.horizon=4", "algo.critic_iterations=2", "algo.critic_minibatches=2",
             "algo.hidden=[16]", "eval.episodes=4", "task.max_episode_steps=6", "algo.iterations=1"]

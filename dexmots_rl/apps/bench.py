@@ -2,6 +2,8 @@
 
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
+    dexmots-bench grad --task spray_bottle --json --draws 2          # a tool task, from its pre-grasp
+    dexmots-bench grad --task operate --object jar_a --json --draws 2 # any library object
     dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
@@ -25,7 +27,7 @@ import sys
 
 from ..envs import list_tasks
 from ._cli import errors_as_one_line
-from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, train_one
+from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, grad_bench_tasks, train_one
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
 
@@ -39,8 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dexmots-bench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="bench", required=True)
 
-    def common(p):
-        p.add_argument("--task", default="screw_claw", choices=bench_tasks())
+    def common(p, tasks=None):
+        p.add_argument("--task", default="screw_claw", choices=tasks or bench_tasks())
         p.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
         p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
         p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
@@ -63,7 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torch-threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
 
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
-    common(p)
+    common(p, grad_bench_tasks())
+    p.add_argument("--object", default=None,
+                   help="the library object operate or a tool task operates (default: the task's own)")
     p.add_argument("--horizons", type=int, nargs="+", default=[1, 8, 32])
     p.add_argument("--eps", type=float, default=1e-6)
     p.add_argument("--num-entries", type=int, default=16, help="action entries checked per row")
@@ -193,7 +197,7 @@ def _execute(args: argparse.Namespace) -> dict:
         from .bench_grad import run_grad
 
         result = run_grad(args.task, args.horizons, args.eps, args.num_entries, args.floor_rel, args.seed,
-                          args.device, args.draws)
+                          args.device, args.draws, args.object)
         result["goals"], result["goals_met"] = dict(GOALS), _grad_goals(result)
         return result
 

@@ -2,7 +2,9 @@
 
 A benchmark needs more than the env's MJCF: a pose from which closing the hand makes contact (for
 throughput), a pose already touching the object and one far from it (for gradient checks), and the
-action that squeezes the object. Each task module declares them (``DexEnv.bench``).
+action that squeezes the object. Each task module declares them (``DexEnv.bench``), or builds them for
+its scene (``DexEnv.bench_poses``: ``operate`` and the tool tasks, from their pre-grasps; only the gradient
+benchmark runs those).
 """
 
 from __future__ import annotations
@@ -12,15 +14,32 @@ from typing import Callable
 
 import torch
 
-from ..envs import BenchPoses, list_tasks, task_entry, task_scene
+from ..envs import BenchPoses, DexEnv, list_tasks, make_env, task_entry, task_scene
 
-__all__ = ["bench_tasks", "bench_task", "load_task_scene", "device_name", "measure_rate", "train_one",
+__all__ = ["bench_tasks", "grad_bench_tasks", "bench_task", "bench_env", "load_task_scene", "device_name", "measure_rate", "train_one",
            "TRAIN_GOAL_SUCCESS"]
 
 
 def bench_tasks() -> list[str]:
     """The registered tasks that declare bench poses."""
     return [name for name in list_tasks() if task_entry(name).env_class.bench is not None]
+
+
+def grad_bench_tasks() -> list[str]:
+    """The registered tasks the gradient benchmark runs: :func:`bench_tasks` and those whose env builds its
+    bench poses for its scene (overrides ``DexEnv.bench_poses``)."""
+    return [name for name in list_tasks() if task_entry(name).env_class.bench is not None
+            or task_entry(name).env_class.bench_poses is not DexEnv.bench_poses]
+
+
+def bench_env(task: str, **overrides) -> DexEnv:
+    """A bare one-world env of ``task`` (config ``overrides``, e.g. ``object=``), without gradients: its
+    ``bench_poses()``, ``sim.scene`` and ``sim.contact`` are what a benchmark simulates. Raises ``ValueError``
+    naming the benchmarked tasks when the task has no bench poses."""
+    if task not in grad_bench_tasks():
+        task_entry(task)  # an unknown name: its own error, listing every task
+        raise ValueError(f"task {task!r} declares no bench poses; benchmarked tasks: {', '.join(grad_bench_tasks())}")
+    return make_env(task, num_envs=1, raw=True, differentiable=False, **overrides)
 
 
 def bench_task(task: str) -> BenchPoses:

@@ -60,7 +60,9 @@ class DexEnv(EnvBase):
     # other success tests dexmots-eval reports as success_rate_<name> (e.g. an original code's looser test): name ->
     # function (env, achieved_goal [N, G], goal [N, G]) -> [N] bool at the episode end; a terminated episode fails
     extra_success: dict = {}
-    bench = None  # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked)
+    # BenchPoses for dexmots-bench throughput / grad (None: the task is not benchmarked, unless it builds its
+    # poses per scene by overriding bench_poses: then the gradient benchmark runs it)
+    bench = None
     contact_params = None  # the scene's ContactParams (None: the defaults, sized for the claw)
     plan_problem = None  # PlanProblem for dexmots-bench plan
     action_center = None  # hand joint targets of the zero position/vi action (None: mid-range of each joint)
@@ -122,6 +124,10 @@ class DexEnv(EnvBase):
         self._make_specs()
         self.generator = torch.Generator(device=device)
         self._set_seed(seed if seed is not None else int(torch.empty((), dtype=torch.int64).random_().item()))
+
+    def bench_poses(self):
+        """The :class:`~dexmots_rl.envs.BenchPoses` of this env's scene (default: the class's ``bench``)."""
+        return self.bench
 
     def _param_ranges(self) -> dict[str, tuple[float, float]]:
         """Per-episode randomisation of the scene's named parameters, ``{name: (low, high)}`` (the task

@@ -116,13 +116,27 @@ def config_from_dict(cls, data: dict[str, Any]) -> TaskConfig:
 @dataclasses.dataclass(frozen=True)
 class BenchPoses:
     """A task's poses and actions for the benchmarks (hand dofs then object q, in the MJCF's joint
-    order; actions in [-1, 1] per actuator, torque action space)."""
+    order; actions in [-1, 1] per actuator, torque action space), and what the gradient benchmark's loss
+    aims at. A task declares them as its class's ``bench`` or builds them per scene
+    (:meth:`~dexmots_rl.envs.DexEnv.bench_poses`, e.g. from its pre-grasps)."""
 
     open_q: tuple[float, ...]  # hand open, not touching; closing from here makes contact
     close_action: tuple[float, ...]  # strong closing action used from ``open_q`` (throughput)
     touch_q: tuple[float, ...]  # fingers already on the object (gradients with contact)
     free_q: tuple[float, ...]  # fingers far from the object (gradients without contact)
     squeeze_action: tuple[float, ...]  # moderate closing action that keeps ``touch_q`` in contact
+    # action from ``free_q`` that keeps the fingers off the object (a hand that droops under gravity
+    # onto the object needs one); empty: none
+    release_action: tuple[float, ...] = ()
+    # the gradient benchmark's loss (dexmots-bench grad): the operated joint (index among the object's
+    # joints; an articulated object's base is not one), its goal (rad or m) and goal speed (rad/s or m/s);
+    # None: the benchmark's defaults (a knob turned toward pi/4 at 1 rad/s)
+    joint: int = 0
+    goal: Optional[float] = None
+    goal_speed: Optional[float] = None
+    # a free base's tolerated shift (m) and tilt (rad): the loss holds the base where it stands, each
+    # deviation divided by its tolerance; None: no base term (a fixed base, or a scene without one)
+    base_tolerance: Optional[tuple[float, float]] = None
 
 
 @dataclasses.dataclass(frozen=True)

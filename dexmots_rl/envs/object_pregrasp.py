@@ -37,7 +37,7 @@ import numpy as np
 from .pregrasp import PregraspError, _finger_sites, _solve_ik
 
 __all__ = ["object_regions", "fallback_regions", "find_object_pregrasps", "check_object_pregrasp",
-           "release_drift", "object_drift", "operate_pregrasp_path", "OPERATE_HINT", "FREE_POSE", "TUCKED_POSE"]
+           "release_drift", "object_drift", "operate_pregrasp_path", "squeeze_torque", "OPERATE_HINT", "FREE_POSE", "TUCKED_POSE"]
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +145,31 @@ def check_object_pregrasp(model, data, scene, asset, q_hand, regions, touch_tole
     deepest = min(_geom_distance(model, data, h, o, 0.05) for h in hand_geoms for o in object_geoms)
     ok = all(-max_penetration <= d <= touch_tolerance for d in tips.values()) and deepest >= -max_penetration
     return ok, {"tip_distance": tips, "deepest_penetration": deepest}
+
+
+def squeeze_torque(scene, asset, q_hand, force: float, joint: str | None = None) -> np.ndarray:
+    """Hand joint torques [nu] (N m) that press every fingertip with a grasp region (:func:`object_regions`)
+    into its part with ``force`` newtons along the region's inward normal, the object at rest and the hand
+    at ``q_hand``: the Jacobian transpose of each fingertip site, from MuJoCo's kinematics. Gravity and the
+    contact are not compensated: from a pre-grasp (fingertips already pressing) this closes the grasp."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(scene.path))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    regions = object_regions(asset, model, data, joint)
+    nu = scene.num_hand_dofs
+    data.qpos[:nu] = q_hand
+    mujoco.mj_forward(model, data)
+    sites = _finger_sites(model, scene)
+    tau, jac = np.zeros(nu), np.zeros((3, model.nv))
+    for r in regions:
+        site, qidx, _ = sites[_finger_index(scene, r.finger)]
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, _body_name(asset, r.part))
+        normal = data.xmat[body].reshape(3, 3) @ np.asarray(r.normal, dtype=float)
+        mujoco.mj_jacSite(model, data, jac, None, site)
+        tau[qidx] += jac[:, qidx].T @ (-force * normal / np.linalg.norm(normal))  # the hand's qpos = its dofs
+    return tau
 
 
 def _geom_distance(model, data, a: int, b: int, reach: float) -> float:

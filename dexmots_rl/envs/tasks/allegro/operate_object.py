@@ -222,6 +222,12 @@ class OperateObjectEnv(DexEnv):
             if len(names) == 1:
                 self._variant_pregrasps *= self.num_variants
 
+    def bench_poses(self):
+        """The benchmark poses of this scene: a pre-grasp squeezed, the hand extended clear (:mod:`.operate_bench`)."""
+        from .operate_bench import operate_bench_poses
+
+        return operate_bench_poses(self)
+
     def _read_pregrasps(self, object_name: str) -> torch.Tensor:
         """The start poses [K, nu] of ``object_name`` (``task.object`` or one of ``task.objects``):
         ``task.pregrasps`` or the library object's shipped file, checked whole."""
