@@ -99,7 +99,7 @@ class OperateObjectConfig(TaskConfig):
     pose_scale: float = 0.1  # of the joint's range: r_pose = exp(-|q - ref| / (pose_scale range))
     # r_wrench = exp(-|tau - ref| / scale), tau the fingers' force on the operated joint. The tools' hinges need
     # 0.01 N m (scissors' friction) to 0.26 N m (the stapler's spring at its goal), the torque of a fingertip
-    # pressing 0.5-5 N at the 5 cm lever of a trigger or handle: 0.05 N m (1 N at 5 cm) resolves a finger's
+    # pressing 0.2-5 N at the 5 cm lever of a trigger or handle: 0.05 N m (1 N at 5 cm) resolves a finger's
     # share, and a hand that gives none of the reference still earns a little and feels the gradient.
     torque_scale: float = dataclasses.field(default=0.05, metadata=rule(gt=0))  # N m (a hinge)
     # the slides need 0.7 N (the drawer's damping) to 2.9 N (the pump's spring held down): 1 N, one fingertip's push
