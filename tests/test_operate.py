@@ -65,3 +65,32 @@ def test_reward_gradients_are_finite_from_the_start(name):
     total.backward()
     grads = torch.stack([a.grad for a in actions])
     assert torch.isfinite(grads).all() and grads.abs().sum() > 0
+
+
+@pytest.mark.parametrize("task, scale", [("spray_bottle", "torque_scale"), ("valve", "torque_scale"),
+                                         ("drawer", "force_scale")])
+def test_wrench_term_rewards_the_reference_torque_with_the_pose_wrench_goal_only(task, scale):
+    """``("reward_terms", "wrench")`` is exp(-|τ - τ̄| / scale), τ the fingers' force on the operated joint (N m
+    about a hinge, N along a slide) and τ̄ the reference's; the reward counts it with the pose + wrench goal, not
+    with the pose-only goals (the ablation)."""
+    for goal in ("pose_wrench", "pose", "pose_traj"):
+        env = make_env(task, num_envs=2, seed=0, goal=goal, differentiable=False)
+        base, c = env.base_env, env.base_env.config
+        assert base.wrench_scale == getattr(c, scale)
+        td = env.reset()
+        td["action"] = torch.zeros(2, env.action_spec.shape[-1])
+        for _ in range(2):
+            td = env.step(td)["next"]
+            td["action"] = torch.zeros(2, env.action_spec.shape[-1])
+        terms, j = td["reward_terms"], base.joint_index
+        assert td["object", "joint_wrench"].shape == (2, base.sim.tree.num_parts)
+        torque = td["object", "joint_wrench"][:, j:j + 1]
+        assert torque.abs().max() > 0  # the pre-grasp's fingertips press on the part
+        _, reference = base.joint_reference(td, td["task", "step"])
+        torch.testing.assert_close(terms["wrench"], torch.exp(-(torque - reference[:, 0]).abs() / getattr(c, scale)))
+        k = c.reward
+        assert k.lambda_wrench > 0
+        rest = (k.lambda_pose * terms["pose"] + k.lambda_act * terms["action"] + k.lambda_f * terms["fingertip"]
+                + c.lambda_base * terms["base"])
+        weight = k.lambda_wrench if goal == "pose_wrench" else 0.0
+        torch.testing.assert_close(td["reward"], rest + weight * terms["wrench"])

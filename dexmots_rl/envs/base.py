@@ -137,6 +137,8 @@ class DexEnv(EnvBase):
     # ------------------------------------------------------------------------------------------ specs
     def _obs_shapes(self) -> dict:
         s, sim = self.sim.scene, self.sim
+        # an articulated object's step also gives the hand's generalised force on each of its joints
+        joints = {("object", "joint_wrench"): (s.tree.num_parts,)} if isinstance(sim, ArticulatedSimulator) else {}
         return {
             ("hand", "q"): (sim.nu,),
             ("hand", "qd"): (sim.nu,),
@@ -145,6 +147,7 @@ class DexEnv(EnvBase):
             ("object", "qd"): (s.object_nv,),
             ("object", "wrench"): (6,),
             ("object", "contact_force"): (1,),
+            **joints,
             ("fingertips", "pos"): (s.num_fingers, 3),
             "achieved_goal": (self.goal_dim,),
             "desired_goal": (self.goal_dim,),
@@ -294,7 +297,9 @@ class DexEnv(EnvBase):
         m = self.reference_bank.batch_size[0]
         return torch.randint(0, m, (n, 1), generator=self.generator, device=self.device)
 
-    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips) -> dict:
+    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips, joint_wrench=None) -> dict:
+        """The observation dict of a state and a step's outputs (``joint_wrench``: an articulated object's, the
+        :class:`~dexmots_rl.sim.articulated.ArticulatedStepOutput` field)."""
         nu = self.sim.nu
         obs = {
             ("hand", "q"): q[:, :nu],
@@ -311,6 +316,8 @@ class DexEnv(EnvBase):
             ("task", "goal"): goal,
             "desired_goal": goal,
         }
+        if joint_wrench is not None:
+            obs[("object", "joint_wrench")] = joint_wrench
         obs["achieved_goal"] = self.achieved_goal(obs)
         return obs
 
@@ -319,7 +326,11 @@ class DexEnv(EnvBase):
         pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"], init["params"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
         zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
-        obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)
+        # no contact before the first step (an articulated object's joints feel no hand force either)
+        joints = ([torch.zeros(self.num_envs, self.sim.tree.num_parts, dtype=self.dtype, device=self.device)]
+                  if isinstance(self.sim, ArticulatedSimulator) else [])
+        obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips,
+                            *joints)
         obs[("task", "ref_index")] = init["ref_index"]
         return obs
 
@@ -385,8 +396,9 @@ class DexEnv(EnvBase):
             params = {name: value.detach() for name, value in params.items()}
         with torch.set_grad_enabled(self.differentiable and torch.is_grad_enabled()):
             out = self.sim.step(q, qd, self.actions(action.to(self.dtype)), params)
+            # out[6:]: what an articulated object's step adds (joint_wrench)
             obs = self._observe(out.joint_q, out.joint_qd, params, goal, out.wrench, out.contact_force,
-                                out.body_pose, out.fingertips)
+                                out.body_pose, out.fingertips, *out[6:])
             obs[("task", "ref_index")] = task[("task", "ref_index")]
             reward, terms = self.task_reward(obs, task, action)
             obs.update({("reward_terms", name): terms[name] for name in self.reward_terms})

@@ -24,8 +24,9 @@ if os.environ.get("DEXMOTS_VERIFY_AUTOGRAD"):
 
 from .model import AssetError, ContactParams, SceneModel, load_scene  # noqa: E402
 from .simulator import Control, SimStep, Simulator, StepOutput  # noqa: E402
-from .articulated import ArticulatedScene, ArticulatedSimulator  # noqa: E402
+from .articulated import ArticulatedScene, ArticulatedSimulator, ArticulatedStepOutput  # noqa: E402
 from .object_sim import ObjectSimulator, TableContact, load_object_tree  # noqa: E402
 
 __all__ = ["AssetError", "ContactParams", "SceneModel", "load_scene", "Control", "SimStep", "Simulator", "StepOutput",
-           "ArticulatedScene", "ArticulatedSimulator", "ObjectSimulator", "TableContact", "load_object_tree"]
+           "ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", "ObjectSimulator", "TableContact",
+           "load_object_tree"]

@@ -30,10 +30,23 @@ from .object_model import MAX_SAMPLES
 from .palm_object_kernels import build_palm_object_kernels
 from .model import ContactParams
 from .object_sim import ObjectSimulator, TableContact
+from .simulator import StepOutput
 
-__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ObjectGeoms", "object_geoms"]
+__all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", "ObjectGeoms", "object_geoms"]
 
 LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
+
+
+class ArticulatedStepOutput(StepOutput):
+    """:class:`~dexmots_rl.sim.StepOutput` of an articulated object, plus ``joint_wrench`` [N, P]: the mean over
+    substeps of the fingers' generalised contact force on each of the object's part joints (the order of
+    ``tree.joint_names``), the component of their wrench on the bodies the joint moves that acts on the joint: the
+    torque about a hinge's axis through its anchor (N m), the force along a slide's axis (N), positive when it
+    pushes the joint's coordinate up (the sign of the reference's joint torque). Like ``wrench`` it counts the
+    fingers' contacts: the palm's push, like the table's, is part of the scene."""
+
+    __slots__ = ()
+    names = StepOutput.names + ("joint_wrench",)
 
 
 class ArticulatedSimulator(ObjectSimulator):
@@ -172,10 +185,10 @@ class ArticulatedSimulator(ObjectSimulator):
         z = self._zeros(self.num_worlds, self.nu)
         return Control(z, z, z, z)
 
-    def step(self, joint_q, joint_qd, control, params):
-        """One env step; returns a :class:`~dexmots_rl.sim.StepOutput` (the hand's contact wrench on the object
-        is summed over its bodies, torque about the base origin)."""
-        from .simulator import SimStep, StepOutput
+    def step(self, joint_q, joint_qd, control, params) -> ArticulatedStepOutput:
+        """One env step; returns an :class:`ArticulatedStepOutput` (the hand's contact wrench on the object
+        is summed over its bodies, torque about the base origin; its force on each joint is ``joint_wrench``)."""
+        from .simulator import SimStep
 
         n = joint_q.shape[0]
         if n != self.num_worlds:
@@ -183,8 +196,8 @@ class ArticulatedSimulator(ObjectSimulator):
         ext = control.object_wrench
         ext = self._zeros(n, 6) if ext is None else ext
         self.variant_of(params)  # checked here: the kernels index with it
-        return StepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target, control.kp,
-                                                control.kd, self.pack_params(params), ext))
+        return ArticulatedStepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target,
+                                                   control.kp, control.kd, self.pack_params(params), ext))
 
     def observe(self, joint_q, joint_qd=None, params=None):
         """Body poses [N, B, 7] (hand links, then the object's bodies) and fingertips [N, F, 3]; ``params``

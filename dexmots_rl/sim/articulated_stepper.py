@@ -35,13 +35,15 @@ class ArticulatedTrajectory:
         k, tree = sim.kernels, sim.tree
         nu, nb, nparts = sim.nu, tree.num_bodies, max(tree.num_parts, 1)
         rows, sub_rows = (steps + 1) * n, steps * n
-        # torch-visible buffers: the state trajectories (hand, object), the step's inputs, the observation
+        # torch-visible buffers: the state trajectories (hand, object), the running means over substeps (the
+        # hand's wrench on the object, its normal force, its generalised force on each joint), the step's inputs,
+        # the observation
         self.hq, self.hqd, self.oq, self.oqd = z(rows, nu), z(rows, nu), z(rows, tree.nq), z(rows, tree.nv)
-        self.wrench, self.normal = z(rows, 6), z(rows)
+        self.wrench, self.normal, self.joint_wrench = z(rows, 6), z(rows), z(rows, nparts)
         self.controls = [z(n, nu), z(n, nu), z(n, nu), z(n, nu), z(n, sim.num_params_packed), z(n, 6 * nb)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
         self._torch = [self.hq, self.hqd, self.oq, self.oqd, self.wrench, self.normal, *self.controls, self.pose,
-                       self.tips]
+                       self.tips, self.joint_wrench]
 
         def new(dtype, width, count=sub_rows):
             return wp.zeros((count, width), dtype=dtype, device=sim.device)
@@ -86,9 +88,9 @@ class ArticulatedTrajectory:
         num_points = len(sim.scene.point_radius)
 
         def launches(a, model, hand_model, palm_model, only_touching):
-            hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips = a[:14]
-            cut = 24 + len(self.palm)
-            frames, table, palm = a[14:19], a[19:24], a[24:cut]
+            hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips, joint_wrench = a[:15]
+            cut = 25 + len(self.palm)
+            frames, table, palm = a[15:20], a[20:25], a[25:cut]
             hand, total, scratch, final = a[cut:cut + 5], a[cut + 5:cut + 7], a[cut + 7:cut + 15], a[cut + 15:cut + 20]
             variant = a[-1][lo:hi]
 
@@ -114,9 +116,10 @@ class ArticulatedTrajectory:
                 out.append((h.finger_contact, (dim, num_points),
                             [hand_model, variant, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
                              only_touching]))
-                out.append((k.sum_contacts, dim, [tb[0], tb[1], hand_f, hand_t, fr[0], fr[2], rows(wrench, s),
-                                                  rows(normal, s), step_normal, weight, *tot,
-                                                  rows(wrench, s + 1), rows(normal, s + 1)]))
+                out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
+                                                  rows(wrench, s), rows(normal, s), rows(joint_wrench, s),
+                                                  step_normal, weight, *tot, rows(wrench, s + 1),
+                                                  rows(normal, s + 1), rows(joint_wrench, s + 1)]))
                 out.append((k.substep, dim, [model, variant, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
                                              *[rows(x, s) for x in scratch], nxt[2], nxt[3]]))
                 out.append((h.hand_substep, (dim, sim.scene.num_fingers),
@@ -162,15 +165,19 @@ class ArticulatedTrajectory:
         run_blocks(lambda lo, hi: [launch() for launch in self._forward_cmds[lo]], self.blocks)
 
     def outputs(self) -> list[torch.Tensor]:
+        """(q, qd, wrench, contact force, pose, tips, joint wrench): :class:`~dexmots_rl.sim.articulated.
+        ArticulatedStepOutput`."""
         last, sim = self.steps * self.n, self.sim
         return [torch.cat([self.hq[last:], self.oq[last:]], 1), torch.cat([self.hqd[last:], self.oqd[last:]], 1),
                 self.wrench[last:].clone(), self.normal[last:].clone(),
-                self.pose.clone().view(-1, sim.num_bodies, 7), self.tips.clone().view(-1, sim.scene.num_fingers, 3)]
+                self.pose.clone().view(-1, sim.num_bodies, 7), self.tips.clone().view(-1, sim.scene.num_fingers, 3),
+                self.joint_wrench[last:, :sim.tree.num_parts].clone()]
 
     def backward(self, grad_outputs, needed=None) -> list[torch.Tensor]:
-        """Adjoints of (q, qd, wrench, contact force, pose, tips) -> adjoints of (joint_q, joint_qd, tau,
-        q_target, kp, kd, packed params, object wrench). ``needed`` (which inputs need a gradient; the knob
-        stepper's protocol, see :class:`~dexmots_rl.sim.SimStep`) is not used: every adjoint comes at once."""
+        """Adjoints of (q, qd, wrench, contact force, pose, tips, joint wrench) -> adjoints of (joint_q,
+        joint_qd, tau, q_target, kp, kd, packed params, object wrench). ``needed`` (which inputs need a gradient;
+        the knob stepper's protocol, see :class:`~dexmots_rl.sim.SimStep`) is not used: every adjoint comes at
+        once."""
         if not self.save:
             raise RuntimeError("this trajectory was run without its adjoint buffers")
         n, nu, last = self.n, self.sim.nu, self.steps * self.n
@@ -189,16 +196,17 @@ class ArticulatedTrajectory:
         for a in self.adj_warp:
             a.zero_()
         a_hq, a_hqd, a_oq, a_oqd, a_wrench, a_normal = self.adj_torch[:6]
-        a_pose, a_tips = self.adj_torch[12:14]
-        q_grad, qd_grad, wrench_grad, normal_grad, pose_grad, tips_grad = grad_outputs
+        a_pose, a_tips, a_joint_wrench = self.adj_torch[12:15]
+        q_grad, qd_grad, wrench_grad, normal_grad, pose_grad, tips_grad, joint_wrench_grad = grad_outputs
         if q_grad is not None:
             a_hq[last:].copy_(q_grad[:, :nu])
             a_oq[last:].copy_(q_grad[:, nu:])
         if qd_grad is not None:
             a_hqd[last:].copy_(qd_grad[:, :nu])
             a_oqd[last:].copy_(qd_grad[:, nu:])
+        parts = self.sim.tree.num_parts
         for target, g in ((a_wrench[last:], wrench_grad), (a_normal[last:], normal_grad), (a_pose, pose_grad),
-                          (a_tips, tips_grad)):
+                          (a_tips, tips_grad), (a_joint_wrench[last:, :parts], joint_wrench_grad)):
             if g is not None:
                 target.copy_(g.reshape(target.shape))
         run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)

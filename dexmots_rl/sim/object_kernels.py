@@ -433,5 +433,5 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         contact_Kww[w, b] = contact_Kww[w, b] + Kww
 
     ns = types.SimpleNamespace(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
-                               sum_contacts=build_sum_contacts(dtype, B), vec3=vec3, mat33=mat33, dtype=dtype)
+                               sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)
     return ns

@@ -28,7 +28,8 @@ import numpy as np
 
 from .mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 
-__all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS"]
+__all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
+           "SLIDE"]
 
 MAX_PARTS = 4
 MAX_SAMPLES = 12  # table-contact samples per body (each is unrolled in the kernel and its adjoint)

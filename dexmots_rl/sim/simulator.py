@@ -362,7 +362,8 @@ class SimStep(torch.autograd.Function):
     trajectory that keeps the step's substeps and the intermediates the reverse pass replays, and
     backward runs the kernels' adjoints over it in reverse, then returns it to the pool (no tape, no
     trajectory and no gradient buffers otherwise). Inputs: ``sim, joint_q, joint_qd, tau,
-    q_target, kp, kd, params, object_wrench``; outputs as :class:`StepOutput`."""
+    q_target, kp, kd, params, object_wrench``; outputs as :class:`StepOutput` (an articulated object's step adds
+    its joints' generalised contact forces: :class:`~dexmots_rl.sim.articulated.ArticulatedStepOutput`)."""
 
     @staticmethod
     def forward(ctx, sim: Simulator, *inputs):
