@@ -240,3 +240,13 @@ def test_operate_on_a_split():
     env = make_env("valve", num_envs=2, objects="heldout", seed=0, raw=True)
     assert env.object_asset.name == "valve_c" and env.sim.scene.num_variants == 1
     assert torch.isfinite(env.rollout(2)["next", "reward"]).all()
+
+
+def test_success_by_variant_names_each_object():
+    from dexmots_rl.algorithms.evaluation import _success_by
+
+    variant = torch.tensor([0.0, 1.0, 1.0, 0.0, 1.0])
+    won = torch.tensor([True, False, True, True, False])
+    rows = _success_by(variant, won, labels=["valve_a", "valve_b"])
+    assert [(r["label"], r["episodes"], r["success_rate"]) for r in rows] == [("valve_a", 2, 1.0),
+                                                                             ("valve_b", 3, pytest.approx(1 / 3))]

@@ -7,7 +7,7 @@ episode that never terminated (repose_cube: the cube never dropped); the final p
 ``‖achieved_goal − goal‖`` at the last step; time to success is the first step at which the flag was set,
 over the successful episodes. ``success_by_<name>`` breaks the success rate down by quartiles of each
 randomised parameter the task names (``DexEnv.breakdowns``, e.g. the knob's joint friction, or repose_cube's
-goal angle).
+goal angle), or by its values when it takes four or fewer (one per object variant, with its ``label``).
 
 Example:
     >>> from omegaconf import OmegaConf
@@ -68,7 +68,8 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
         **{f"success_rate_{name}": float((test(base, final_achieved, final_goal) & kept).float().mean())
            for name, test in base.extra_success.items()},
         # where the misses are, by the task's randomised parameters (e.g. the knob's friction)
-        **{f"success_by_{name}": _success_by(_episode_values(base, rollout, key), won)
+        **{f"success_by_{name}": _success_by(_episode_values(base, rollout, key), won,
+                                              labels=base.breakdown_labels.get(name))
            for name, key in base.breakdowns.items()},
     }
 
@@ -86,8 +87,19 @@ def _episode_values(env, rollout, key) -> torch.Tensor:
     return rollout.get(key)[:, 0].reshape(-1)
 
 
-def _success_by(values: torch.Tensor, won: torch.Tensor, groups: int = 4) -> list[dict]:
-    """Success rate in ``groups`` equal-count groups of episodes sorted by ``values`` (quartiles by default)."""
+def _success_by(values: torch.Tensor, won: torch.Tensor, groups: int = 4, labels=None) -> list[dict]:
+    """Success rate in ``groups`` equal-count groups of episodes sorted by ``values`` (quartiles by default), or,
+    for a parameter with ``labels`` (a category: value i is ``labels[i]``, e.g. an object variant) or with at
+    most ``groups`` distinct values, in one group per value."""
+    distinct = values.unique()
+    if labels is not None or len(distinct) <= groups:
+        rows = []
+        for value in distinct:
+            mask = values == value
+            row = {"low": float(value), "high": float(value), "episodes": int(mask.sum()),
+                   "success_rate": float(won[mask].float().mean())}
+            rows.append({"label": labels[int(value)], **row} if labels is not None else row)
+        return rows
     order = values.argsort()
     return [{"low": float(values[idx].min()), "high": float(values[idx].max()), "episodes": len(idx),
              "success_rate": float(won[idx].float().mean())} for idx in order.chunk(groups)]

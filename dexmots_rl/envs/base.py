@@ -57,6 +57,8 @@ class DexEnv(EnvBase):
     # evaluation breakdowns: name -> key of a per-episode value, or a function (env, first-step TensorDict [N])
     # -> [N] values; dexmots-eval reports success by its quartiles
     breakdowns: dict = {}
+    # names of a categorical breakdown's values (name -> [label of value 0, 1, ...]), e.g. each object variant's
+    breakdown_labels: dict = {}
     # other success tests dexmots-eval reports as success_rate_<name> (e.g. an original code's looser test): name ->
     # function (env, achieved_goal [N, G], goal [N, G]) -> [N] bool at the episode end; a terminated episode fails
     extra_success: dict = {}

@@ -226,6 +226,9 @@ class OperateObjectEnv(DexEnv):
         if self.num_variants > 1:
             self._variant_values = self._variant_table(scene)
             self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
+            names = (object_names(c.objects, c.object) if c.objects
+                     else [c.object] + [f"{c.object}_size{i}" for i in range(1, self.num_variants)])
+            self.breakdown_labels = {"variant": names}  # dexmots-eval names each variant's group
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
         self._pregrasps = None
