@@ -60,8 +60,10 @@ SPLITS = ("train", "heldout")
 
 def object_split(object_class: str) -> dict[str, list[str]]:
     """The library instances of ``object_class`` (or of the class of the instance named ``object_class``) in two
-    disjoint parts, ``{"train": [...], "heldout": [...]}``: the last instance of the class (in
-    :data:`INSTANCES`' order) is held out and the others train. Every class has at least two instances, so each
+    disjoint parts, ``{"train": [...], "heldout": [...]}``: the class's second instance (in :data:`INSTANCES`'
+    order, ``<class>_b``) is held out and the others train. The first instance has the class's default
+    parameters and later ones vary around them, so with three or more the held-out one lies among the training
+    ones (the valve's: four spokes between three and five). Every class has at least two instances, so each
     part is non-empty; instances of one class share their topology, so either part is one scene of variants."""
     if object_class in INSTANCES:
         object_class = INSTANCES[object_class][0]
@@ -69,7 +71,7 @@ def object_split(object_class: str) -> dict[str, list[str]]:
     if not names:
         classes = sorted({cls for cls, _ in INSTANCES.values()})
         raise ObjectError(f"object_split: unknown class or object {object_class!r}; classes: {classes}")
-    return {"train": names[:-1], "heldout": names[-1:]}
+    return {"train": names[:1] + names[2:], "heldout": names[1:2]}
 
 
 def load_object(name_or_path: str | Path, **urdf_options) -> ObjectAsset:
