@@ -6,12 +6,13 @@
 
 From each world's start state (the task's reset: a tool in its pre-grasp, the cube on the palm) every hand joint
 gets its full motor torque (``gear`` x ±1, a random sign per world and joint) whose sign flips every step, for
-``--steps`` steps (``--hold k``: new random signs every k steps instead, as tests/test_articulated.py's). Prints one JSON line per task: the object's peak base speed (m/s), spin (rad/s) and height
-gain (m, its origin above its start; speed and spin count a free object until it falls 0.1 m below its start,
-``fallen_worlds`` counts those), its part joints' peak speed (rad/s or m/s; the knob's hinge), and the
-largest excess of its energy gain over the work the motors did up to then (J; kinetic energy of every body,
-gravity, the joint springs: sim/energy.py), beside ``release_j``, the most the hand's links can give by falling
-0.2 m. An excess above ``release_j`` is energy the contact made.
+``--steps`` steps (``--hold k``: new random signs every k steps instead, as tests/test_articulated.py's). Prints
+one JSON line per task: the object's peak base speed (m/s), spin (rad/s) and height gain (m, its origin above its
+start; speed and spin count a free object until it falls 0.1 m below its start, ``fallen_worlds`` counts those),
+its part joints' peak speed (rad/s or m/s; the knob's hinge), and the largest excess of its energy gain over the
+work the motors did up to then (J; kinetic energy of every body, gravity, the joint springs: sim/energy.py),
+beside ``release_j``, the most the hand's links can give by falling 0.2 m. An excess above ``release_j`` is energy
+the contact made (``worlds_making_energy`` counts those worlds).
 """
 
 from __future__ import annotations
@@ -98,6 +99,7 @@ def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold
             "peak_base_speed": round(speed, 3), "peak_base_spin": round(spin, 2), "peak_height_gain": round(height, 4),
             "peak_joint_speed": round(joint_speed, 3),
             "fallen_worlds": int((~near).sum()) if free else 0, "max_energy_excess_j": round(float(excess.max()), 4),
+            "worlds_making_energy": int((excess > release).sum()),
             "release_j": round(release, 3), "motor_work_j": round(float(work.max()), 2), "finite": finite,
             "seconds": round(time.perf_counter() - start, 1)}
 
