@@ -34,14 +34,13 @@ def operate_bench_poses(env) -> BenchPoses:
     docstring says what each is). Raises :class:`~dexmots_rl.envs.pregrasp.PregraspError` for an object
     without pre-grasps (a URDF's need ``task.pregrasps``)."""
     from ...object_pregrasp import squeeze_torque
-    from .operate_object import OPEN, object_names
 
     c, sim = env.config, env.sim
     if env.object_asset is None:
         raise ValueError("bench poses need the object's description: build the env from task.object")
     pregrasps = env._pregrasps
     if pregrasps is None:  # task.initial=open: the pre-grasps are read for the benchmark alone
-        pregrasps = env._read_pregrasps(object_names(c.objects)[0] if c.objects else c.object)
+        pregrasps = env._read_pregrasps(env.instance_names[0])
     hand = pregrasps[0].double().cpu().numpy()
     torque = squeeze_torque(sim.scene, env.object_asset, hand, SQUEEZE_FORCE, env.joint_name)
     gear = np.asarray(sim.scene.actuator_gear, dtype=np.float64)
@@ -49,7 +48,7 @@ def operate_bench_poses(env) -> BenchPoses:
     obj = tuple(float(x) for x in sim.tree.q0)
     squeeze = tuple(float(x) for x in squeeze)
     return BenchPoses(
-        open_q=(*OPEN, *obj),
+        open_q=(*(float(x) for x in env._open), *obj),
         close_action=squeeze,
         touch_q=(*(float(x) for x in hand), *obj),
         free_q=(*EXTENDED, *obj),

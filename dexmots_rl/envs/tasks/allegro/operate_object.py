@@ -207,6 +207,8 @@ class OperateObjectEnv(DexEnv):
         self.joint_index = tree.joint_names.index(name)
         self.joint_name = name
         self.num_variants = scene.num_variants
+        # the objects (library names or URDF paths) the scene's variants are instances of: task.objects', resolved
+        self.instance_names = object_names(config.objects, config.object) if config.objects else [config.object]
         super().__init__(config, scene=scene, **kwargs)
         c, dev, dt = self.config, self.device, self.dtype
         # N along a slide, N m about a hinge: the unit of the fingers' force on the operated joint
@@ -226,15 +228,15 @@ class OperateObjectEnv(DexEnv):
         if self.num_variants > 1:
             self._variant_values = self._variant_table(scene)
             self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
-            names = (object_names(c.objects, c.object) if c.objects
-                     else [c.object] + [f"{c.object}_size{i}" for i in range(1, self.num_variants)])
-            self.breakdown_labels = {"variant": names}  # dexmots-eval names each variant's group
+            self.breakdown_labels = {"variant": (self.instance_names if c.objects else  # dexmots-eval's names
+                                                 [c.object] + [f"{c.object}_size{i}" for i in
+                                                               range(1, self.num_variants)])}
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=dt, device=dev)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights
         self._pregrasps = None
         if c.initial == "pregrasp":
             # each instance's own pre-grasps (task.objects); size variants start from their instance's
-            names = object_names(c.objects, c.object) if c.objects else [c.object]
+            names = self.instance_names
             self._variant_pregrasps = [self._read_pregrasps(name) for name in names]
             self._pregrasps = self._variant_pregrasps[0]
             if len(names) == 1:
