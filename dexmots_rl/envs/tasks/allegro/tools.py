@@ -11,7 +11,7 @@ its class's generator (:mod:`dexmots_rl.assets.objects.generators`), never from 
 task                    object            what the hand does
 ======================  ===============  ======================================================================
 ``spray_bottle``        spray_bottle_a    holds the bottle and pulls its sprung trigger to 90 % of its travel
-``scissors``            scissors_a        closes the handles on their pivot
+``scissors``            scissors_a        opens the closed scissors: spreads the finger rings on their pivot
 ``stapler``             stapler_a         presses the sprung arm down
 ``pump_dispenser``      pump_dispenser_a  presses the sprung pump head down
 ``jar``                 jar_a             turns the lid (friction, no spring) while holding the jar
