@@ -23,7 +23,7 @@ INSTANCES: dict[str, tuple[str, dict]] = {
                                             trigger_length=0.05, trigger_travel=0.35, trigger_stiffness=0.2,
                                             body_mass=0.25)),
     "scissors_a": ("scissors", {}),
-    "scissors_b": ("scissors", dict(blade_length=0.065, handle_length=0.05, ring_radius=0.01, opening=0.5,
+    "scissors_b": ("scissors", dict(blade_length=0.065, handle_length=0.05, ring_radius=0.0135, opening=0.5,
                                     stiffness=0.04, friction=0.005, half_mass=0.025)),
     "stapler_a": ("stapler", {}),
     "stapler_b": ("stapler", dict(length=0.115, width=0.036, arm_length=0.105, open_angle=0.4, stiffness=0.3,

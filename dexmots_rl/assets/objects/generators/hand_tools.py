@@ -33,7 +33,8 @@ class ScissorsParams(Params):
     thickness: float = param(0.004, 0.003, 0.006, "m", "thickness of one half (blade and shank)")
     handle_length: float = param(0.06, 0.045, 0.075, "m", "pivot to ring centre along -x")
     handle_spread: float = param(0.02, 0.014, 0.028, "m", "ring centre's offset from the axis (each side)")
-    ring_radius: float = param(0.011, 0.009, 0.013, "m", "inner radius of a finger ring")
+    # a robot finger's hole: the Allegro's fingertip is 24 mm across (a person's scissors: 10-12.5 mm)
+    ring_radius: float = param(0.014, 0.013, 0.015, "m", "inner radius of a finger ring")
     ring_band: float = param(0.0045, 0.0035, 0.006, "m", "width of a ring's band")
     half_mass: float = param(0.035, 0.015, 0.06, "kg", "one half (blade, shank, ring)", "mass")
     opening: float = param(0.6, 0.45, 0.8, "rad", "how far the scissors open (the operated range)", "angle")
@@ -84,11 +85,14 @@ def scissors(params: ScissorsParams | None = None, rng=None, name: str = "scisso
     moving_geoms = _scissor_half(p, -1.0, p.thickness, HANDLE_BLUE, "b", meshes)
     joint = Joint("pivot", "hinge", (0.0, 0.0, 1.0), (0.0, p.opening), stiffness=p.stiffness, rest=-p.preload,
                   damping=p.damping, friction=p.friction)
-    # the thumb in (on) the base half's ring, the middle finger in the other's; the rings lie 2.5 cm behind
-    # the point under the palm, where the thumb reaches down
-    top = 1.5 * p.thickness
-    regions = (grasp_region("thumb", "half_a", (-p.handle_length, p.handle_spread, top), (0, 0, 1)),
-               grasp_region("middle", "half_b", (-p.handle_length, -p.handle_spread, top), (0, 0, 1)))
+    # the thumb in the base half's ring, the middle finger in the other's (the rings lie 2.5 cm behind the point
+    # under the palm, where the thumb reaches down), each tip touching its hole's far wall at mid-height, the
+    # side it pushes to spread the rings; squeeze 0: touching, so the pre-grasp itself does not open them
+    mid = 0.75 * p.thickness
+    regions = (grasp_region("thumb", "half_a", (-p.handle_length, p.handle_spread + p.ring_radius, mid),
+                            (0, -1, 0), squeeze=0.0),
+               grasp_region("middle", "half_b", (-p.handle_length, -p.handle_spread - p.ring_radius, mid),
+                            (0, 1, 0), squeeze=0.0))
     return ObjectAsset(
         name=name, object_class="scissors", base="free", operated_joint="pivot",
         parts=(Part("half_a", base_geoms, visual="half_a"),
