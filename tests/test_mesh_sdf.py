@@ -100,8 +100,9 @@ def _scissors():
 
 
 def test_a_sphere_fits_in_the_scissors_ring():
-    """The finger ring's hole is free space: its centre is a ring radius from the ring's SDF, so the Allegro's
-    smaller finger spheres (9.8 mm) fit in it; the ring's oriented bounding box holds the centre."""
+    """The finger ring's hole is free space: its centre is a ring radius from the ring's SDF, wider than every
+    sphere of the Allegro's fingers (the 12 mm fingertip too), so a tip fits in it; the ring's oriented bounding
+    box holds the centre."""
     scene, p = _scissors()
     g = scene.geoms
     ring = int(np.flatnonzero(g.kind[0] == GEOM_SDF)[0])
@@ -118,7 +119,7 @@ def test_a_sphere_fits_in_the_scissors_ring():
                       wp.array(points, dtype=vec3d), out])
     hole, in_band, over = out.numpy()
     assert hole == pytest.approx(p["ring_radius"], abs=1.0e-3)
-    assert hole > min(r for r in scene.point_radius if r > 0)
+    assert hole > max(scene.point_radius) + 1.0e-3
     assert in_band < -0.5 * p["ring_band"] + 1.0e-3  # inside the band
     assert over == pytest.approx(0.004, abs=5.0e-4)
     assert np.all(g.size[0, ring] > SDF_PAD)

@@ -19,9 +19,9 @@ error saying how to describe them. :func:`find_object_pregrasps` then, per candi
    (:func:`object_drift`): the grasp neither pushes the tool away nor operates it;
 4. and only if MuJoCo's geometry (:func:`check_object_pregrasp`, an independent check) finds every named
    fingertip within 5 mm of its part and no hand geom more than 3 mm inside any object geom (the smooth contact
-   settles a lightly pressing fingertip 2-4 mm outside the exact surface). A mesh geom is its convex hull to
-   MuJoCo and its oriented bounding box to our finger contact: both solid, so a fingertip rests on a ring's
-   top, never inside it.
+   settles a lightly pressing fingertip 2-4 mm outside the exact surface). A fingertip sphere is measured
+   against a mesh geom's own surface (MuJoCo's convex hull would fill a ring's hole), as the simulator's
+   signed-distance grid sees it, so a fingertip may sit inside a scissors ring.
 
 The files: ``assets/pregrasps/operate/<object>.json`` ship for every library object (``dexmots-pregrasp
 --task operate --all``, the command ``docs/objects.md`` gives); their ``task`` is ``operate`` and their
