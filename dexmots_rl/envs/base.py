@@ -139,8 +139,6 @@ class DexEnv(EnvBase):
     # ------------------------------------------------------------------------------------------ specs
     def _obs_shapes(self) -> dict:
         s, sim = self.sim.scene, self.sim
-        # an articulated object's step also gives the hand's generalised force on each of its joints
-        joints = {("object", "joint_wrench"): (s.tree.num_parts,)} if isinstance(sim, ArticulatedSimulator) else {}
         return {
             ("hand", "q"): (sim.nu,),
             ("hand", "qd"): (sim.nu,),
@@ -149,7 +147,6 @@ class DexEnv(EnvBase):
             ("object", "qd"): (s.object_nv,),
             ("object", "wrench"): (6,),
             ("object", "contact_force"): (1,),
-            **joints,
             ("fingertips", "pos"): (s.num_fingers, 3),
             "achieved_goal": (self.goal_dim,),
             "desired_goal": (self.goal_dim,),
@@ -299,9 +296,10 @@ class DexEnv(EnvBase):
         m = self.reference_bank.batch_size[0]
         return torch.randint(0, m, (n, 1), generator=self.generator, device=self.device)
 
-    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips, joint_wrench=None) -> dict:
-        """The observation dict of a state and a step's outputs (``joint_wrench``: an articulated object's, the
-        :class:`~dexmots_rl.sim.articulated.ArticulatedStepOutput` field)."""
+    def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips, *step_extras) -> dict:
+        """The observation dict of a state and a step's outputs; ``step_extras``: what a scene's step adds to
+        :class:`~dexmots_rl.sim.StepOutput` (an articulated object's ``joint_wrench``; nothing at reset), read by
+        the task that simulates such a scene."""
         nu = self.sim.nu
         obs = {
             ("hand", "q"): q[:, :nu],
@@ -318,8 +316,6 @@ class DexEnv(EnvBase):
             ("task", "goal"): goal,
             "desired_goal": goal,
         }
-        if joint_wrench is not None:
-            obs[("object", "joint_wrench")] = joint_wrench
         obs["achieved_goal"] = self.achieved_goal(obs)
         return obs
 
@@ -328,11 +324,7 @@ class DexEnv(EnvBase):
         pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"], init["params"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
         zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
-        # no contact before the first step (an articulated object's joints feel no hand force either)
-        joints = ([torch.zeros(self.num_envs, self.sim.tree.num_parts, dtype=self.dtype, device=self.device)]
-                  if isinstance(self.sim, ArticulatedSimulator) else [])
-        obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips,
-                            *joints)
+        obs = self._observe(init["joint_q"], init["joint_qd"], init["params"], init["goal"], zeros6, zeros, pose, tips)
         obs[("task", "ref_index")] = init["ref_index"]
         return obs
 

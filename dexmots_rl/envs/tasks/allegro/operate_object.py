@@ -349,11 +349,17 @@ class OperateObjectEnv(DexEnv):
     def _obs_shapes(self) -> dict:
         shapes = super()._obs_shapes()
         parts = self.sim.tree.num_parts
-        shapes.update({("object", "q"): (parts,), ("object", "qd"): (parts,), ("object", "base_pose"): (7,)})
+        shapes.update({("object", "q"): (parts,), ("object", "qd"): (parts,), ("object", "base_pose"): (7,),
+                       ("object", "joint_wrench"): (parts,)})
         return shapes
 
     def _observe(self, q, qd, params, goal, wrench, contact_force, body_pose, tips, joint_wrench=None) -> dict:
-        obs = super()._observe(q, qd, params, goal, wrench, contact_force, body_pose, tips, joint_wrench)
+        """DexEnv's observation, the object's joints and poses, and ``joint_wrench`` (the step's
+        :class:`~dexmots_rl.sim.ArticulatedStepOutput` field; None at reset: no contact yet, zeros)."""
+        obs = super()._observe(q, qd, params, goal, wrench, contact_force, body_pose, tips)
+        if joint_wrench is None:
+            joint_wrench = torch.zeros(q.shape[0], self.sim.tree.num_parts, dtype=self.dtype, device=self.device)
+        obs[("object", "joint_wrench")] = joint_wrench
         nu, free = self.sim.nu, self.sim.tree.free
         obs[("object", "q")] = q[:, nu + 7 * free:]
         obs[("object", "qd")] = qd[:, nu + 6 * free:]
