@@ -159,14 +159,21 @@ def _train_cfg(run_dir, *overrides):
 def test_the_time_budget_stops_a_trainer_with_a_final_evaluation(tmp_path):
     result = train(_train_cfg(tmp_path / "ppo", *TINY_PPO, "algo.total_frames=1e7", "budget.wall_clock_s=0.5"))
     metrics = json.loads((tmp_path / "ppo" / "metrics.json").read_text())
-    assert metrics["budget"] == {"wall_clock_s": 0.5, "env_steps": None, "stopped_by": "wall_clock_s"}
+    assert metrics["budget"] == {"wall_clock_s": 0.5, "env_steps": None, "cpu_s": None, "stopped_by": "wall_clock_s"}
     assert 0.5 <= result["train_wall_clock_s"] < 30 and result["iterations"] < 1e7 / 12
+    assert 0 < result["train_cpu_s"] and "cpu_s" in json.loads((tmp_path / "ppo" / "metrics.jsonl").read_text()
+                                                                 .splitlines()[0])
     assert result["episodes"] == 2 and (tmp_path / "ppo" / "checkpoints" / "last.pt").is_file()
     # the env-step budget, on SHAC (2 worlds x horizon 4 = 8 steps per iteration)
     result = train(_train_cfg(tmp_path / "shac", "algo=shac", "algo.horizon=4", "algo.hidden=[8]",
                               "algo.critic_iterations=1", "algo.iterations=1000", "budget.env_steps=20"))
     assert result["iterations"] == 3 and result["env_steps"] == 24
     assert result["budget"]["stopped_by"] == "env_steps"
+    # the CPU-time budget (the process's training CPU time, which others' load does not take), on SHAC
+    result = train(_train_cfg(tmp_path / "shac_cpu", "algo=shac", "algo.horizon=4", "algo.hidden=[8]",
+                              "algo.critic_iterations=1", "algo.iterations=100000", "budget.cpu_s=0.3"))
+    assert result["budget"]["stopped_by"] == "cpu_s" and 0.3 <= result["train_cpu_s"] < 30
+    assert result["iterations"] < 100000 and result["train_wall_clock_s"] > 0
 
 
 def test_a_tiny_real_sweep_end_to_end(tmp_path):

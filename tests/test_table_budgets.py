@@ -85,7 +85,8 @@ def test_equal_budgets_keep_the_single_budget_sentence(tmp_path, fake_trainer):
     (["+task_budgets.screw_claw.wall_clock_s=-1"], "task_budgets.screw_claw.wall_clock_s must be null or a "
                                                       "positive number"),
     (["+task_budgets.screw_claw.env_steps=1.5"], "task_budgets.screw_claw.env_steps must be null or a positive"),
-    (["+task_budgets.screw_claw.seconds=5"], "task_budgets.screw_claw takes wall_clock_s and env_steps"),
+    (["+task_budgets.screw_claw.seconds=5"], "task_budgets.screw_claw takes wall_clock_s, env_steps, cpu_s"),
+    (["+task_budgets.screw_claw.cpu_s=0"], "task_budgets.screw_claw.cpu_s must be null or a positive number"),
     (["+task_budgets.nope.wall_clock_s=5"], "task_budgets: unknown task 'nope'"),
     (["~task_budgets", "+task_budgets=[screw_claw]"], "task_budgets must map task names"),
 ])
@@ -129,7 +130,7 @@ def _run_seconds(identity: dict) -> float:
         return STARTUP_S + MPC_S_PER_EPISODE_CANDIDATE.get(task, TOOL_MPC_S) * ev["episodes"] * algo["candidates"]
     final = FINAL_EVAL_S.get(task, TOOL_EVAL_S) * ev["episodes"] / 100
     curve = CURVE_EVALS * FINAL_EVAL_S.get(task, TOOL_EVAL_S) * (ev["curve_episodes"] or ev["episodes"]) / 100
-    return identity["budget"]["wall_clock_s"] + STARTUP_S + final + curve
+    return identity["budget"]["cpu_s"] + STARTUP_S + final + curve
 
 
 def test_the_suite_preset_is_valid_and_fits_its_hours(tmp_path):
@@ -145,8 +146,9 @@ def test_the_suite_preset_is_valid_and_fits_its_hours(tmp_path):
     assert spec.tasks == tuple(cfg.paper_tasks) and not spec.notes  # every paper and tool task, all registered
     assert [m.name for m in spec.methods] == list(cfg.method_catalog)  # every method, each algo exists
     assert spec.seeds == (0, 1, 2) and cfg.n_jobs == 2 and spec.ablation_tasks == ("screw_claw",)  # and Fig. 3b
-    assert set(spec.task_budgets) == set(spec.tasks)  # a stated budget per task, wall-clock (sized for 2 cores)
-    assert all(b["wall_clock_s"] > 0 and b["env_steps"] is None for b in spec.task_budgets.values())
+    assert set(spec.task_budgets) == set(spec.tasks)  # a stated budget per task, CPU time (sized for 2 cores)
+    assert all(b["cpu_s"] > 0 and b["wall_clock_s"] is None and b["env_steps"] is None
+               for b in spec.task_budgets.values())
     runs = spec.runs(threads=1)
     assert sum(r.experiment == "table" for r in runs) == len(spec.tasks) * len(spec.methods) * 3
     loader, master = table._train_multirun_config(cfg, spec.sweep_dir)
@@ -159,7 +161,7 @@ def test_the_suite_preset_is_valid_and_fits_its_hours(tmp_path):
         identity = run_identity(composed)
         assert identity["eval"]["episodes"] == 100
         assert run.algo != "mpc" or identity["algo"]["horizon"] == 30  # the horizon MPC's rates were measured at
-        assert identity["budget"]["wall_clock_s"] == spec.task_budgets[run.task]["wall_clock_s"]
+        assert identity["budget"]["cpu_s"] == spec.task_budgets[run.task]["cpu_s"]
         seconds += len(spec.seeds) * _run_seconds(identity)
     hours = seconds / cfg.n_jobs / 3600
     assert 0.8 * SUITE_HOURS <= hours <= SUITE_HOURS, f"the suite is sized at {hours:.2f} h"

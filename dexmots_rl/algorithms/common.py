@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import sys
-import time
 import warnings
 
 import torch
@@ -30,7 +29,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from ..progress import progress_bar
 from ..envs import make_env
-from .budget import RunBudget
+from .budget import RunBudget, TrainingClock
 from .rundir import RunDirectory
 
 __all__ = ["CollectorLoop", "ObsNorm", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
@@ -149,6 +148,7 @@ def batch_metrics(data, counters: dict) -> dict:
         "iteration": counters["iteration"],
         "env_steps": counters["env_steps"],
         "wall_clock_s": round(counters["wall_clock_s"], 3),
+        "cpu_s": round(counters.get("cpu_s", 0.0), 3),
         "reward": float(nxt.get("reward").mean()),
         "episodes": ended,
         "episode_success": float(nxt.get("success").squeeze(-1)[done].float().mean()) if ended else float("nan"),
@@ -174,14 +174,14 @@ class CollectorLoop:
 
     def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int):
         self.run, self.cfg, self.policy, self.vecnorm, self.iterations = run, run.cfg, policy, vecnorm, iterations
-        self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0}
+        self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "cpu_s": 0.0}
         if run.start is not None:
             self.counters.update(run.start["counters"])
         self.stop_at = min(iterations, self.cfg.stop_after) if self.cfg.stop_after else iterations
         self.budget, self.stopped_by, self.ended = RunBudget.from_config(self.cfg), None, False
         self.bar = progress_bar(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
                         desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
-        self._t_start = time.perf_counter() - self.counters["wall_clock_s"]
+        self.clock = TrainingClock(self.counters)
 
     def restore(self, modules: dict, optimizers: dict) -> None:
         """On resume: the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
@@ -209,7 +209,7 @@ class CollectorLoop:
         ``modules`` (``"policy"``, the deployable policy, is synced with the normaliser first) and
         ``optimizers`` when due, evaluate when due; True when the run is over."""
         counters = self.counters
-        counters["wall_clock_s"] = time.perf_counter() - self._t_start
+        self.clock.read(counters)
         row = {**batch_metrics(data, counters), **stats}
         self.run.log(row)
         self.bar.update(1)
@@ -223,9 +223,8 @@ class CollectorLoop:
             sync_obs_norm(self.policy, self.vecnorm)
             self.run.checkpoint(counters, modules, optimizers, rng={"torch": torch.get_rng_state()})
             if evaluate_now:
-                t_eval = time.perf_counter()
-                self.run.evaluate(self.policy, counters, final=False)
-                self._t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
+                with self.clock.paused():  # evaluation is not training time (the budget's clock)
+                    self.run.evaluate(self.policy, counters, final=False)
         return stop
 
     def finish(self, collector) -> dict:

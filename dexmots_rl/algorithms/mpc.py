@@ -339,5 +339,5 @@ def _plan(run: RunDirectory) -> dict:
     row = {**ev, **planner.budget(), "iteration": 0, "env_steps": episodes * steps, "wall_clock_s": round(wall, 2)}
     run.log({k: v for k, v in row.items() if not isinstance(v, list)})
     # a training budget does not apply: nothing trains (dexmots-table reports "no training", not "0 s to 90 %")
-    no_training = {"wall_clock_s": None, "env_steps": None, "stopped_by": NO_TRAINING}
+    no_training = {"wall_clock_s": None, "env_steps": None, "cpu_s": None, "stopped_by": NO_TRAINING}
     return run.write_result(ev, counters, budget=no_training, **planner.budget(), wall_clock_s=round(wall, 2))

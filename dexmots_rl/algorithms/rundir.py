@@ -296,6 +296,7 @@ class RunDirectory:
         cfg = self.cfg
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
+                  "train_cpu_s": round(counters.get("cpu_s", 0.0), 2),
                   "budget": budget or {}, **extra, "run_dir": str(self.dir)}
         if self.main:
             atomic_write_json(self.dir / "metrics.json", result)  # a sweep's restart trusts a complete file

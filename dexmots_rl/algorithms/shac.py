@@ -25,7 +25,6 @@ import logging
 import signal
 import sys
 import threading
-import time
 import warnings
 
 import torch
@@ -38,7 +37,7 @@ from ..progress import progress_bar
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
 from .best_policy import BestPolicy
-from .budget import RunBudget
+from .budget import RunBudget, TrainingClock
 from .distributed import Distributed
 from .networks import make_networks
 from .rundir import RunDirectory
@@ -126,6 +125,7 @@ def _train(run: RunDirectory, dist, stop) -> dict:
     smoothness = _smoothness(cfg, actor)
     best = BestPolicy(modules, optimizers, cfg.algo.best_window, cfg.algo.rollback_drop) if cfg.algo.keep_best else None
     counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0,
+                "cpu_s": 0.0,
                 "smooth_scale": 1.0 if cfg.algo.smooth_clip_target is None else 0.0}
     sim = env.base_env.sim
     td = env.reset()
@@ -143,7 +143,7 @@ def _train(run: RunDirectory, dist, stop) -> dict:
     iterations = cfg.algo.iterations
     bar = progress_bar(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
                        disable=not (cfg.progress and dist.is_main), file=sys.stderr)
-    t_start = time.perf_counter() - counters["wall_clock_s"]
+    clock = TrainingClock(counters)
     stop_at = min(iterations, cfg.stop_after) if cfg.stop_after else iterations
     budget, stopped_by = RunBudget.from_config(cfg), None
     interrupted = False
@@ -200,7 +200,7 @@ def _train(run: RunDirectory, dist, stop) -> dict:
         interrupted = bool(dist.sum(torch.tensor([float(stop.signal is not None)])) > 0)
         counters["iteration"] += 1
         counters["env_steps"] += rollout.numel() * dist.world_size
-        counters["wall_clock_s"] = time.perf_counter() - t_start
+        clock.read(counters)
         # the main rank's clock decides (the others' include its evaluations) and every rank stops with it
         over = budget.reached(counters) if dist.is_main else None
         if dist.sum(torch.tensor([float(over is not None)])) > 0:
@@ -226,9 +226,8 @@ def _train(run: RunDirectory, dist, stop) -> dict:
             if last or interrupted or counters["iteration"] % cfg.checkpoint_every == 0:
                 _save(run, counters, modules, optimizers, td, env, best)
             if cfg.eval.every and counters["iteration"] % cfg.eval.every == 0 and not last:
-                t_eval = time.perf_counter()
-                run.evaluate(actor, counters, final=False)
-                t_start += time.perf_counter() - t_eval  # evaluation is not training time (the budget's clock)
+                with clock.paused():  # evaluation is not training time (the budget's clock)
+                    run.evaluate(actor, counters, final=False)
     bar.close()
     result = {}
     if interrupted:
@@ -284,6 +283,7 @@ def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, 
         "iteration": counters["iteration"],
         "env_steps": counters["env_steps"],
         "wall_clock_s": round(counters["wall_clock_s"], 3),
+        "cpu_s": round(counters.get("cpu_s", 0.0), 3),
         "reward": float(dist.mean(nxt.get("reward").detach().mean())),
         "episode_success": float(finished[1] / finished[0]) if finished[0] > 0 else float("nan"),
         "loss_actor": float(loss_actor.detach()),

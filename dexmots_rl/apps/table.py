@@ -21,7 +21,8 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    runs do not oversubscribe the cores (one thread per run changes float reduction order:
    configs/config.yaml, ``torch_threads``). An unfinished run restarts from scratch (``overwrite=true``).
 3. Every run of a task has the same budget, ``budget`` or the task's ``task_budgets`` entry
-   (``wall_clock_s`` of training, evaluations excluded, and/or ``env_steps``:
+   (``wall_clock_s`` of training, evaluations excluded, ``cpu_s`` of the run process's CPU time, likewise,
+   and/or ``env_steps``:
    :mod:`dexmots_rl.algorithms.budget`; table.md states it, per task when the tasks' differ) and the same
    final evaluation (``eval.episodes`` deterministic episodes, success = the task's threshold at the episode end); the
    learning curves come from periodic evaluations (``eval.every`` per method in the preset,
@@ -218,8 +219,9 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
              f"mean ± s.d. over seeds {', '.join(map(str, spec.seeds))}. {budget_text(budgets, table_rows)}",
              "", markdown_table(table_rows, tasks, methods, seeds=len(spec.seeds),
                                 budgets={t: budget_cell(b) for t, b in budgets.items()} if per_task else None), "",
-             "Training wall-clock to 90 % success (mean over the runs that reached it, from the periodic and final "
-             "evaluations; (reached/finished runs)):", "", time_to_success_table(table_rows, tasks, methods), ""]
+             f"Training {_clock_words(budgets)} to 90 % success (mean over the runs that reached it, from the "
+             "periodic and final evaluations; (reached/finished runs)):", "",
+             time_to_success_table(table_rows, tasks, methods), ""]
     if outputs:
         lines += ["Figures: " + ", ".join(outputs), ""]
     notes = list(spec.notes)
@@ -233,9 +235,17 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
     return "\n".join(lines)
 
 
+def _clock_words(budgets) -> str:
+    from .table_writer import budget_clock
+
+    clocks = {budget_clock(b) for b in budgets.values()}
+    return "CPU time of the run's process" if clocks == {"cpu_s"} else (
+        "wall-clock" if clocks == {"wall_clock_s"} else "time (each task's budget clock)")
+
+
 def _figures(spec, runs, rows: list[dict]) -> list[str]:
     from ..viz.table_plots import plot_action_spaces, plot_learning_curves
-    from .table_writer import learning_curve
+    from .table_writer import budget_clock, learning_curve
 
     import matplotlib.pyplot as plt
 
@@ -248,7 +258,8 @@ def _figures(spec, runs, rows: list[dict]) -> list[str]:
         if any(curves.values()):
             out = spec.sweep_dir / f"curves_{task}.png"
             plt.close(plot_learning_curves({m: c for m, c in curves.items() if c},
-                                           {m.name: m.label for m in spec.methods}, spec.task_labels[task], out))
+                                           {m.name: m.label for m in spec.methods}, spec.task_labels[task], out,
+                                           time_key=budget_clock(spec.budget_of(task))))
             written.append(out.name)
     for task in spec.ablation_tasks:
         out = spec.sweep_dir / f"action_space_{task}.png"

@@ -16,7 +16,7 @@ action-space run with a task's default action is the table's run itself.
 spec fails with a :class:`SweepSpecError` naming the field and the name.
 
 Every method of a task trains under the same budget: ``budget``, or the task's own entry of ``task_budgets``
-(its whole budget: ``{wall_clock_s, env_steps}``, a key not given is null). The budget is among a run's
+(its whole budget: ``{wall_clock_s, env_steps, cpu_s}``, a key not given is null). The budget is among a run's
 overrides, so it is part of the run's identity: a changed budget runs that task's runs again.
 
 Example:
@@ -51,6 +51,9 @@ log = logging.getLogger(__name__)
 OWNED_KEYS = ("task", "seed", "algo", "task.action", "run_dir", "resume", "overwrite", "budget", "torch_threads",
               "hydra")
 
+#: a budget's limits (dexmots_rl.algorithms.budget.RunBudget): seconds of training wall-clock, env steps, seconds of
+#: the run process's training CPU time
+BUDGET_KEYS = ("wall_clock_s", "env_steps", "cpu_s")
 
 #: dexmots-train keys that do not change what a run computes (where it writes, how it reports, its threads):
 #: left out of :func:`run_identity`
@@ -107,7 +110,7 @@ class SweepSpec:
     task_overrides: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     method_overrides: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
-    #: task -> its own budget (``{"wall_clock_s", "env_steps"}``), replacing ``budget`` for every method of it
+    #: task -> its own budget (``{"wall_clock_s", "env_steps", "cpu_s"}``), replacing ``budget`` for every method of it
     task_budgets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def method(self, name: str) -> Method:
@@ -139,6 +142,7 @@ class SweepSpec:
                       "overwrite=true", "progress=false",  # an unfinished run restarts; the table has the bar
                       f"budget.wall_clock_s={_value(budget.get('wall_clock_s'))}",
                       f"budget.env_steps={_value(budget.get('env_steps'))}",
+                      f"budget.cpu_s={_value(budget.get('cpu_s'))}",
                       f"hydra.sweep.subdir={_quoted(run_dir.relative_to(self.sweep_dir.resolve()))}"]
         if threads is not None:
             table_keys.append(f"torch_threads={threads}")
@@ -235,15 +239,17 @@ def _per_name(value, field_name: str, known: Sequence[str], what: str) -> dict[s
 
 
 def _budget(value, field_name: str) -> dict[str, Any]:
-    """``{"wall_clock_s", "env_steps"}`` from a budget mapping, each null or positive (a key not given: null)."""
-    if not isinstance(value, dict) or set(value) - {"wall_clock_s", "env_steps"}:
-        raise SweepSpecError(f"{field_name} takes wall_clock_s and env_steps, got {value!r}")
-    for key, ok in (("wall_clock_s", lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v > 0),
-                    ("env_steps", lambda v: isinstance(v, int) and v > 0)):
+    """``{"wall_clock_s", "env_steps", "cpu_s"}`` from a budget mapping, each null or positive (a key not given:
+    null)."""
+    if not isinstance(value, dict) or set(value) - set(BUDGET_KEYS):
+        raise SweepSpecError(f"{field_name} takes {', '.join(BUDGET_KEYS)}, got {value!r}")
+    seconds = lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v > 0  # noqa: E731
+    for key, ok in (("wall_clock_s", seconds), ("env_steps", lambda v: isinstance(v, int) and v > 0),
+                    ("cpu_s", seconds)):
         v = value.get(key)
         if v is not None and (isinstance(v, bool) or not ok(v)):
             raise SweepSpecError(f"{field_name}.{key} must be null or a positive number, got {v!r}")
-    return {"wall_clock_s": value.get("wall_clock_s"), "env_steps": value.get("env_steps")}
+    return {key: value.get(key) for key in BUDGET_KEYS}
 
 
 def _task_budgets(value, known: Sequence[str]) -> dict[str, dict[str, Any]]:
@@ -252,7 +258,7 @@ def _task_budgets(value, known: Sequence[str]) -> dict[str, dict[str, Any]]:
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise SweepSpecError(f"task_budgets must map task names to {{wall_clock_s, env_steps}}, got {value!r}")
+        raise SweepSpecError(f"task_budgets must map task names to {{{', '.join(BUDGET_KEYS)}}}, got {value!r}")
     out = {}
     for task, entry in value.items():
         if task not in known:
@@ -318,7 +324,10 @@ def run_identity(config) -> dict[str, Any]:
 
     data = OmegaConf.to_container(config, resolve=False) if not isinstance(config, dict) else dict(config)
     kept = {k: v for k, v in data.items() if k not in IDENTITY_IGNORED}
-    return OmegaConf.to_container(OmegaConf.create(kept), resolve=True)
+    identity = OmegaConf.to_container(OmegaConf.create(kept), resolve=True)
+    if isinstance(identity.get("budget"), dict):  # a limit that is not set is no limit, whether null or absent
+        identity["budget"] = {k: v for k, v in identity["budget"].items() if v is not None}
+    return identity
 
 
 def _stored_identity(run_dir: Path) -> dict | None:

@@ -32,15 +32,15 @@ from typing import Iterable, Mapping, Sequence
 
 from ..algorithms.budget import NO_TRAINING
 
-__all__ = ["CSV_FIELDS", "NO_TRAINING", "budget_cell", "budget_text", "learning_curve",
+__all__ = ["CSV_FIELDS", "NO_TRAINING", "budget_cell", "budget_clock", "budget_text", "learning_curve",
            "markdown_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
-              "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
-              "budget_env_steps", "run_dir")
+              "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
+              "budget_env_steps", "budget_cpu_s", "run_dir")
 _INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps")
-_FLOATS = ("success", "wall_clock_s", "time_to_90_s", "budget_wall_clock_s")
+_FLOATS = ("success", "wall_clock_s", "cpu_s", "time_to_90_s", "budget_wall_clock_s", "budget_cpu_s")
 DASH = "–"  # a cell without finished runs
 # NO_TRAINING (:mod:`dexmots_rl.algorithms.budget`): the ``budget.stopped_by`` of a run that trains nothing
 # (``algo=mpc`` plans inside its evaluation episodes); the table reports "no training", not a time to 90 %
@@ -57,8 +57,14 @@ def _jsonl(path: Path) -> list[dict]:
     return rows
 
 
+def budget_clock(budget: Mapping) -> str:
+    """The clock a budget's training time is read on: ``cpu_s`` when it limits CPU time, else ``wall_clock_s``
+    (times to 90 % and the curves' time axis use it)."""
+    return "cpu_s" if budget.get("cpu_s") is not None else "wall_clock_s"
+
+
 def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
-    """``[{"env_steps", "wall_clock_s", "success"}, ...]`` in training order; ``metrics``: the run's final
+    """``[{"env_steps", "wall_clock_s", "cpu_s", "success"}, ...]`` in training order; ``metrics``: the run's final
     ``metrics.json`` (read from ``run_dir`` when ``None``; absent: the periodic evaluations only)."""
     run_dir = Path(run_dir)
     at_iteration, points = {}, []
@@ -68,7 +74,7 @@ def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
         elif "eval_success_rate" in row and row.get("iteration") in at_iteration:
             train = at_iteration[row["iteration"]]
             points.append({"env_steps": train["env_steps"], "wall_clock_s": train["wall_clock_s"],
-                           "success": row["eval_success_rate"]})
+                           "cpu_s": train.get("cpu_s"), "success": row["eval_success_rate"]})
     if metrics is None and (run_dir / "metrics.json").is_file():
         try:
             metrics = json.loads((run_dir / "metrics.json").read_text())
@@ -76,7 +82,7 @@ def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
             metrics = None
     if metrics and "success_rate" in metrics:
         points.append({"env_steps": metrics.get("env_steps"), "wall_clock_s": metrics.get("train_wall_clock_s"),
-                       "success": metrics["success_rate"]})
+                       "cpu_s": metrics.get("train_cpu_s"), "success": metrics["success_rate"]})
     return points
 
 
@@ -97,11 +103,12 @@ def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> d
         trained = metrics.get("iterations") != 0 and budget.get("stopped_by") != NO_TRAINING
         reached = time_to_success(learning_curve(run.run_dir, metrics), threshold) if trained else None
         row.update(success=round(metrics["success_rate"], 4), episodes=metrics.get("episodes"),
-                   wall_clock_s=metrics.get("train_wall_clock_s"), env_steps=metrics.get("env_steps"),
-                   stopped_by=budget.get("stopped_by") if trained else NO_TRAINING,
-                   budget_wall_clock_s=budget.get("wall_clock_s"), budget_env_steps=budget.get("env_steps"))
-        if reached is not None:
-            row.update(time_to_90_s=reached["wall_clock_s"], env_steps_to_90=reached["env_steps"])
+                   wall_clock_s=metrics.get("train_wall_clock_s"), cpu_s=metrics.get("train_cpu_s"),
+                   env_steps=metrics.get("env_steps"), stopped_by=budget.get("stopped_by") if trained else NO_TRAINING,
+                   budget_wall_clock_s=budget.get("wall_clock_s"), budget_env_steps=budget.get("env_steps"),
+                   budget_cpu_s=budget.get("cpu_s"))
+        if reached is not None:  # on the budget's clock
+            row.update(time_to_90_s=reached.get(budget_clock(budget)), env_steps_to_90=reached["env_steps"])
     return row
 
 
@@ -156,6 +163,8 @@ def budget_cell(budget: Mapping) -> str:
     parts = []
     if budget.get("wall_clock_s") is not None:
         parts.append(f"{budget['wall_clock_s']:g} s")
+    if budget.get("cpu_s") is not None:
+        parts.append(f"{budget['cpu_s']:g} s CPU")
     if budget.get("env_steps") is not None:
         parts.append(f"{budget['env_steps']:,} env steps")
     return " or ".join(parts) or "none"
@@ -165,6 +174,8 @@ def _budget_phrase(budget: Mapping) -> str | None:
     parts = []
     if budget.get("wall_clock_s") is not None:
         parts.append(f"{budget['wall_clock_s']:g} s of training wall-clock (evaluations excluded)")
+    if budget.get("cpu_s") is not None:
+        parts.append(f"{budget['cpu_s']:g} s of training CPU time of the run's process (evaluations excluded)")
     if budget.get("env_steps") is not None:
         parts.append(f"{budget['env_steps']:,} env steps")
     return " or ".join(parts) if parts else None
@@ -193,15 +204,16 @@ def budget_text(budgets: Mapping[str, Mapping], rows: Sequence[dict]) -> str:
     seen: dict[str | None, set] = {}
     for r in rows:  # a planner has no training budget
         if r["status"] == "finished" and r["stopped_by"] != NO_TRAINING:
-            seen.setdefault(r["task"] if per_task else None, set()).add((r["budget_wall_clock_s"],
-                                                                         r["budget_env_steps"]))
+            seen.setdefault(r["task"] if per_task else None, set()).add(
+                (r["budget_wall_clock_s"], r["budget_env_steps"], r.get("budget_cpu_s")))
     mixed = {task: len(b) for task, b in seen.items() if len(b) > 1}
     if mixed and not per_task:
         text += (f". **Warning: the finished runs had {mixed[None]} different budgets** (runs.csv: "
-                 "budget_wall_clock_s, budget_env_steps); remove the odd ones' directories and rerun")
+                 "budget_wall_clock_s, budget_env_steps, budget_cpu_s); remove the odd ones' directories and rerun")
     elif mixed:
         text += (". **Warning: the finished runs of " + ", ".join(f"{t} ({n})" for t, n in mixed.items())
-                 + " had different budgets within the task** (runs.csv: budget_wall_clock_s, budget_env_steps); "
+                 + " had different budgets within the task** (runs.csv: budget_wall_clock_s, budget_env_steps, "
+                 "budget_cpu_s); "
                  "remove the odd ones' directories and rerun")
     return text + "."
 
@@ -243,7 +255,7 @@ def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], metho
 
 def time_to_success_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]],
                           methods: Sequence[tuple[str, str]]) -> str:
-    """Mean training wall-clock (s) to 90 % success over the finished runs that reached it, and how many of
+    """Mean training time (s, on the budget's clock: runs.csv's ``time_to_90_s``) to 90 % success over the finished runs that reached it, and how many of
     the runs did (``84 s (2/3)``); ``–`` when none did; ``no training`` for a planner's runs."""
     rows = list(rows)
     reached = _grouped(rows, "time_to_90_s")

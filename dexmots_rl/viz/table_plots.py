@@ -33,7 +33,8 @@ from .plots import save_figure  # noqa: E402
 
 __all__ = ["plot_action_spaces", "plot_learning_curves"]
 
-AXES = (("env_steps", "env steps"), ("wall_clock_s", "training wall-clock (s)"))
+#: the x axes of a learning curve: env steps, then training time on one of these clocks
+TIME_AXES = {"wall_clock_s": "training wall-clock (s)", "cpu_s": "training CPU time (s)"}
 GRID_POINTS = 100
 
 
@@ -59,11 +60,12 @@ def _seed_spread(curves: Sequence[Sequence[dict]], x_key: str):
 
 
 def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[dict]]], labels: Mapping[str, str], title: str,
-                         out: str | Path | None = None):
-    """``curves``: method → one curve per seed (lists of ``{"env_steps", "wall_clock_s", "success"}``);
-    ``labels``: method → legend label. Returns the Figure (written to ``out`` when given)."""
+                         out: str | Path | None = None, time_key: str = "wall_clock_s"):
+    """``curves``: method → one curve per seed (lists of ``{"env_steps", "wall_clock_s", "cpu_s", "success"}``);
+    ``labels``: method → legend label; ``time_key``: the time axis's clock (``wall_clock_s`` or ``cpu_s``).
+    Returns the Figure (written to ``out`` when given)."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
-    for ax, (x_key, x_label) in zip(axes, AXES):
+    for ax, (x_key, x_label) in zip(axes, (("env_steps", "env steps"), (time_key, TIME_AXES[time_key]))):
         for method, seeds in curves.items():
             if seeds and all(len(c) == 1 and not c[0]["wall_clock_s"] for c in seeds):
                 # a planner (algo=mpc) trains nothing: its evaluated success as a level, not a curve
