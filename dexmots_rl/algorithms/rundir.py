@@ -24,6 +24,7 @@ from pathlib import Path
 from ..atomic import atomic_write, atomic_write_json, clean_stale_temps, dumps_json
 from ..envs.config import saved_config_defaults
 from ..envs.registry import list_tasks, task_entry
+from ..provenance import provenance
 from .checkpoint import CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .evaluation import evaluate_policy, periodic_episodes
 from .validation import validate_run_config
@@ -297,7 +298,7 @@ class RunDirectory:
         result = {"task": cfg.task.name, "algo": cfg.algo.name, **ev, "env_steps": counters["env_steps"],
                   "iterations": counters["iteration"], "train_wall_clock_s": round(counters["wall_clock_s"], 2),
                   "train_cpu_s": round(counters.get("cpu_s", 0.0), 2),
-                  "budget": budget or {}, **extra, "run_dir": str(self.dir)}
+                  "budget": budget or {}, **extra, "run_dir": str(self.dir), "provenance": provenance()}
         if self.main:
             atomic_write_json(self.dir / "metrics.json", result)  # a sweep's restart trusts a complete file
             log.info("%s %s: success %.2f after %d env steps, %.0f s", cfg.algo.name, cfg.task.name,

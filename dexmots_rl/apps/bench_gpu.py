@@ -23,11 +23,8 @@ cut short keeps what it measured):
 from __future__ import annotations
 
 import concurrent.futures
-import datetime
 import logging
 import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -36,6 +33,7 @@ from types import SimpleNamespace
 import torch
 
 from ..atomic import atomic_write_json
+from ..provenance import provenance
 from .bench_setup import bench_task, device_name, load_task_scene, train_one
 
 __all__ = ["GOALS", "machine_info", "run_agreement", "run_gpu_check"]
@@ -48,23 +46,12 @@ GOALS = {"screw_claw_fwd_steps_per_s": 400_000, "allegro_rotate_fwd_steps_per_s"
 AGREE_TOLERANCE = 1e-6  # largest |q_cpu - q_device| (rad, m) after the rollout, float64
 
 
-def _commit() -> str | None:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).resolve().parent,
-                             capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
-
-
 def machine_info(device: str) -> dict:
     """Versions and hardware of this run (GPU name, driver and CUDA versions on a CUDA device)."""
     from ..sim.aot import warp_versions
 
     info = {"device": device_name(device), "torch": torch.__version__, "torch_cuda": torch.version.cuda,
-            **warp_versions(), "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-            "python": platform.python_version(), "commit": _commit(),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            **warp_versions(), **provenance(),
             "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
     if torch.device(device).type == "cuda":
         props = torch.cuda.get_device_properties(torch.device(device))
