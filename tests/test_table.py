@@ -99,6 +99,11 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     assert rows[0]["time_to_90_s"] == 20.0 and rows[0]["env_steps_to_90"] == 2000  # the first eval >= 90 %
     launched.clear()
     assert table.run_table(_table_cfg(tmp_path))["launched"] == 0 and launched == []
+    # report_only: the table of what is finished, launching nothing
+    (runs / "ppo" / "vi" / "seed1" / "metrics.json").unlink()
+    result = table.run_table(_table_cfg(tmp_path, "report_only=true"))
+    assert launched == [] and (result["launched"], result["unfinished"]) == (0, 1)
+    assert "1 of 4 runs not finished: screw_claw/ppo/vi/seed1" in result["table"]
 
 
 @pytest.mark.parametrize("overrides, message", [

@@ -5,6 +5,7 @@ seeds as a hydra multirun of ``dexmots-train`` runs, then the table and the plot
     dexmots-table preset=suite                           # every paper and tool task, every method (2 cores, ~8 h)
     dexmots-table preset=paper launcher=submitit_slurm +launcher_params.partition=gpu +launcher_params.timeout_min=60
     dexmots-table seeds=[0] tasks=[screw_claw] methods=[dexmots,ppo] budget.wall_clock_s=30
+    dexmots-table preset=suite report_only=true          # the table of the runs finished so far, launching nothing
     dexmots-table 'method_overrides.ppo=["algo.total_frames=64","algo.frames_per_batch=32"]'   # per-method overrides
 
 How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
@@ -293,7 +294,9 @@ def run_table(cfg) -> dict:
     log.info("dexmots-table: %d runs in %s (%d finished, skipped; %d to run with the %s launcher, %s threads each)",
              len(runs), spec.sweep_dir, len(runs) - len(pending), len(pending), cfg.launcher, threads or "default")
     failures, interrupted = {}, False
-    if pending:
+    if pending and cfg.get("report_only"):
+        log.info("dexmots-table: report_only: %d runs not finished are left out", len(pending))
+    elif pending:
         with _SweepProgress(pending, len(runs) - len(pending), len(runs), bool(cfg.progress)):
             try:
                 failures = _launch(loader, master, pending)
@@ -307,7 +310,8 @@ def run_table(cfg) -> dict:
     write_csv(rows, spec.sweep_dir / "runs.csv")
     report = _report(spec, rows, failures, _figures(spec, runs, rows))
     (spec.sweep_dir / "table.md").write_text(report)
-    return {"sweep_dir": str(spec.sweep_dir), "runs": len(runs), "launched": len(pending),
+    launched = 0 if cfg.get("report_only") else len(pending)
+    return {"sweep_dir": str(spec.sweep_dir), "runs": len(runs), "launched": launched,
             "skipped": len(runs) - len(pending), "failed": sorted(failures), "interrupted": interrupted,
             "unfinished": sum(r["status"] != "finished" for r in rows), "table": report}
 
