@@ -161,6 +161,7 @@ class ArticulatedSimulator(ObjectSimulator):
         m.geom_kind = wp.array(geoms("kind"), dtype=wp.int32, device=self.device)
         m.geom_pos, m.geom_rot = arr(geoms("pos"), k.vec3), arr(geoms("rot"), k.mat33)
         m.geom_size = arr(geoms("size"), k.vec3)
+        m.geom_bound = arr(np.stack([g.skip_bound() for g in variants]), wdt)
         # every variant's grids one after another in one array: each variant's first indices move past the earlier
         starts = np.cumsum([0] + [len(g.sdf_values) for g in variants[:-1]])
         grid = np.stack([g.grid + np.array([start, 0, 0, 0], dtype=np.int32) * (g.grid[..., 1:2] > 0)

@@ -36,15 +36,24 @@ class ObjectGeoms:
     grid: np.ndarray
     sdf_values: np.ndarray
 
-    def bound(self, margin: float = 1.0e-3) -> np.ndarray:
-        """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
-        (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
+    def geom_radius(self) -> np.ndarray:
+        """[B, G] the radius (m) of a sphere about each geom's centre that holds it."""
         radius = np.linalg.norm(self.size, axis=-1)  # box, grid: half diagonal; cylinder: (r, half length)
         radius = np.where(self.kind == GEOM_SPHERE, self.size[..., 0], radius)
         radius = np.where(self.kind == GEOM_CAPSULE, self.size[..., 0] + self.size[..., 1], radius)
         # the mesh lies in the grid's box shrunk by the pad, whose half diagonal is at most this
-        radius = np.where(self.kind == GEOM_SDF, radius - SDF_PAD, radius)
-        reach = np.linalg.norm(self.pos, axis=-1) + radius
+        return np.where(self.kind == GEOM_SDF, radius - SDF_PAD, radius)
+
+    def skip_bound(self) -> np.ndarray:
+        """[B, G] per geom, the radius (m) the finger contact's nearest-geom search may skip it by: a primitive's
+        exact signed distance is at least the distance to its centre minus :meth:`geom_radius`; a mesh's
+        sampled one is only near its true distance, so a mesh is never skipped this way (a huge radius)."""
+        return np.where(self.kind == GEOM_SDF, 1.0e6, self.geom_radius())
+
+    def bound(self, margin: float = 1.0e-3) -> np.ndarray:
+        """Per body, the radius (m) of a sphere about the body origin that holds all its geoms, plus ``margin``
+        (rounding); -1 for a body without geoms. The finger contact skips a body whose sphere is out of reach."""
+        reach = np.linalg.norm(self.pos, axis=-1) + self.geom_radius()
         reach = np.where(self.kind == GEOM_NONE, -np.inf, reach).max(axis=1)
         return np.where(np.isfinite(reach), reach * (1.0 + margin) + margin, -1.0)
 

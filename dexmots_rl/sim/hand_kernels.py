@@ -31,6 +31,7 @@ GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_SDF = -1, 0,
 LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
 FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
 CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
+GEOM_SKIP_MARGIN = 1.0e-5  # m: a geom is skipped only when its bound lies this much beyond the nearest so far
 # m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
 # 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
 SDF_PAD = 0.02
@@ -75,6 +76,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         geom_rot: wp.array3d(dtype=mat33)  # [V, B, G] geom -> body
         geom_size: wp.array3d(dtype=vec3)  # [V, B, G] box, sdf grid: half sizes; sphere: (r); capsule, cylinder:
         # (r, half length)
+        geom_bound: wp.array3d(dtype=dtype)  # [V, B, G] m: a sphere about the geom's centre holding it (a mesh:
+        # huge, never skipped; ObjectGeoms.skip_bound)
         geom_grid: wp.array3d(dtype=wp.vec4i)  # [V, B, G] sdf: (first index in sdf_values, points along x, y, z)
         sdf_values: wp.array(dtype=dtype)  # every variant's sdf grids (m, negative inside), x-major, one after another
         body_bound: wp.array2d(dtype=dtype)  # [V, B] m: a sphere about the body origin holding its geoms (with margin)
@@ -167,9 +170,12 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         best_g = int(-1)
         for g in range(G):
             kind = m.geom_kind[v, b, g]
-            if kind != GEOM_NONE:
+            offset = pl - m.geom_pos[v, b, g]
+            # a geom whose bounding sphere lies farther than the best so far cannot be nearer (its distance is at
+            # least |offset| - bound; the margin keeps float rounding from changing which geom wins)
+            if kind != GEOM_NONE and wp.length(offset) - m.geom_bound[v, b, g] < best_d + dtype(GEOM_SKIP_MARGIN):
                 Rg = m.geom_rot[v, b, g]
-                pg = wp.transpose(Rg) * (pl - m.geom_pos[v, b, g])
+                pg = wp.transpose(Rg) * offset
                 size = m.geom_size[v, b, g]
                 d = best_d
                 if kind == GEOM_SDF:
