@@ -86,6 +86,8 @@ class ArticulatedTrajectory:
         dim, wdt = hi - lo, k.dtype
         dt, weight = wdt(sim.sub_dt), wdt(1.0 / self.steps)
         num_points = len(sim.scene.point_radius)
+        num_links = sim.scene.num_fingers * sim.scene.joints_per_finger
+        points_per_link = num_points // num_links
 
         def launches(a, model, hand_model, palm_model, only_touching):
             hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips, joint_wrench = a[:15]
@@ -113,9 +115,9 @@ class ArticulatedTrajectory:
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
                                 [palm_model, variant, *fr, dt, *tb, *with_palm]))
                     tb = with_palm
-                out.append((h.finger_contact, (dim, num_points),
+                out.append((h.finger_contact, (dim, num_links),
                             [hand_model, variant, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
-                             only_touching]))
+                             only_touching, points_per_link]))
                 out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
                                                   rows(wrench, s), rows(normal, s), rows(joint_wrench, s),
                                                   step_normal, weight, *tot, rows(wrench, s + 1),

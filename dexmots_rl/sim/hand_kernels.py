@@ -2,8 +2,8 @@
 
 Two kernels per substep (sim/articulated.py runs them around the object tree's, sim/object_kernels.py):
 
-* ``finger_contact``, a thread per world and finger sample sphere: the sphere's pose and velocity through its
-  finger chain, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
+* ``finger_contact``, a thread per world and finger link: the link's frame through its finger chain (once for its
+  sample spheres), then for each of the link's spheres its pose and velocity, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
   cylinder, or a mesh's signed-distance grid), and a relaxed penalty contact with Coulomb friction
   (:class:`~dexmots_rl.sim.ContactParams`' law) per body it touches. The force goes to the finger's joints (J^T f) and, opposite, to the object body (force
   and torque about its com) with atomic adds, so contacts of one world sum in any order.
@@ -211,24 +211,20 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         contact_t: wp.array2d(dtype=vec3),  # [N, B] out (atomic): its torque about the body's com (N m)
         normal_sum: wp.array(dtype=dtype),  # [N] out (atomic): the summed normal force magnitudes (N)
         touching: wp.array2d(dtype=wp.int32),  # [N, S] out: 1 where the sphere is within the cutoff of a body
-        only_touching: int,  # 1: return at once where ``touching`` is 0 (the adjoint launch: such a sphere
+        only_touching: int,  # 1: skip a sphere whose ``touching`` is 0 (the adjoint launch: such a sphere
         # contributed nothing, so its adjoint is zero)
+        points_per_link: int,  # P, a launch argument so the loop over a link's spheres stays a loop (unrolled, the
+        # kernel's body would be copied P times)
     ):
-        w, s = wp.tid()
-        link = s / P  # f * J + k of the sphere's link
+        w, link = wp.tid()  # link: f * J + k
         f = link / J
         k_link = link - f * J
-        rad = m.point_radius[s]
-        if rad <= dtype(0.0):
-            return
-        if only_touching != 0:
-            if touching[w, s] == 0:
-                return
-        # the chain up to the sphere's link: joint origins and axes, the link's frame
+        # the chain up to the link, once for all its spheres: joint origins and axes, the link's frame
         R = m.base_rot[f]
         x = m.base_pos[f]
         O = mat3J()  # joint origins (columns)
         A = mat3J()  # joint axes (columns)
+        qdf = vecJ()
         for k in range(J):
             if k <= k_link:
                 i = f * J + k
@@ -238,52 +234,62 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                 O = O + wp.outer(x, unit_j(k))
                 A = A + wp.outer(a, unit_j(k))
                 R = R * axis_angle(m.axis[i], hq[w, i])
-        p = x + R * m.point_pos[s]
-        # the sphere centre's Jacobian over the finger's joints and its velocity
-        Jp = mat3J()
-        qdf = vecJ()
-        for k in range(J):
-            if k <= k_link:
-                col = wp.cross(vec3(A[0, k], A[1, k], A[2, k]), p - vec3(O[0, k], O[1, k], O[2, k]))
-                Jp = Jp + wp.outer(col, unit_j(k))
-                qdf = qdf + hqd[w, f * J + k] * unit_j(k)
-        vp = Jp * qdf
-        gen_f = vecJ()
+                qdf = qdf + hqd[w, i] * unit_j(k)
         v = variant[w]
-        for b in range(B):
-            xb = body_x[w, b]
-            # no geom of body b within the cutoff: skip its distances (their result would go unused)
-            if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
-                Rb = body_R[w, b]
-                pl = wp.transpose(Rb) * (p - xb)
-                best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                # found without an adjoint; only the nearest geom's distance has one, and only within the cutoff
-                g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
-                if g >= 0:
-                    Rg = m.geom_rot[v, b, g]
-                    dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g], m.sdf_values,
-                                       wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
-                    nb = Rg * vec3(dn[1], dn[2], dn[3])
-                    best = vec4(dn[0], nb[0], nb[1], nb[2])
-                pen = rad - best[0]
-                if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                    touching[w, s] = 1
-                    n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
-                    cp = p - n * rad
-                    v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
-                    v_rel = vp - v_body
-                    vn = wp.dot(v_rel, n)
-                    fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
-                    vt = v_rel - vn * n
-                    ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
-                    fc = fn * n + ft  # on the finger
-                    gen_f = gen_f + wp.transpose(Jp) * fc
-                    wp.atomic_add(contact_f, w, b, -fc)
-                    wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
-                    wp.atomic_add(normal_sum, w, fn)
-        for k in range(J):
-            if k <= k_link:
-                wp.atomic_add(gen, w, f * J + k, gen_f[k])
+        # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
+        # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
+        for sp in range(points_per_link):
+            s = link * points_per_link + sp
+            rad = m.point_radius[s]
+            skip = rad <= dtype(0.0)
+            if only_touching != 0:
+                if touching[w, s] == 0:
+                    skip = True
+            if not skip:
+                p = x + R * m.point_pos[s]
+                # the sphere centre's Jacobian over the finger's joints and its velocity
+                Jp = mat3J()
+                for k in range(J):
+                    if k <= k_link:
+                        col = wp.cross(vec3(A[0, k], A[1, k], A[2, k]), p - vec3(O[0, k], O[1, k], O[2, k]))
+                        Jp = Jp + wp.outer(col, unit_j(k))
+                vp = Jp * qdf
+                gen_f = vecJ()
+                for b in range(B):
+                    xb = body_x[w, b]
+                    # no geom of body b within the cutoff: skip its distances (their result would go unused)
+                    if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
+                        Rb = body_R[w, b]
+                        pl = wp.transpose(Rb) * (p - xb)
+                        best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
+                        # found without an adjoint; only the nearest geom's distance has one, and only within the
+                        # cutoff
+                        g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
+                        if g >= 0:
+                            Rg = m.geom_rot[v, b, g]
+                            dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g],
+                                               m.sdf_values, wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
+                            nb = Rg * vec3(dn[1], dn[2], dn[3])
+                            best = vec4(dn[0], nb[0], nb[1], nb[2])
+                        pen = rad - best[0]
+                        if pen > dtype(-CONTACT_CUTOFF) / m.beta:
+                            touching[w, s] = 1
+                            n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                            cp = p - n * rad
+                            v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
+                            v_rel = vp - v_body
+                            vn = wp.dot(v_rel, n)
+                            fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+                            vt = v_rel - vn * n
+                            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+                            fc = fn * n + ft  # on the finger
+                            gen_f = gen_f + wp.transpose(Jp) * fc
+                            wp.atomic_add(contact_f, w, b, -fc)
+                            wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
+                            wp.atomic_add(normal_sum, w, fn)
+                for k in range(J):
+                    if k <= k_link:
+                        wp.atomic_add(gen, w, f * J + k, gen_f[k])
 
     @wp.kernel(module="unique", enable_backward=True)
     def hand_substep(
