@@ -7,7 +7,8 @@ Prints one JSON line per object: our env-steps/s (forward, no gradients; and for
 the same collision geometry), their ratio, the cost of a forward + backward step in forward steps, the CPU
 threads our step used (``DEXMOTS_CPU_THREADS``, default: the cores this process may use), and the kernel
 compile seconds of the first step (cold only on an empty warp cache). Each rate is the best of ``--repeats``
-rounds.
+rounds; ``--clock cpu`` counts this process's CPU time instead of the wall-clock (on a shared machine, with
+``DEXMOTS_CPU_THREADS=1``: both simulators on one core each).
 """
 
 from __future__ import annotations
@@ -21,21 +22,24 @@ from pathlib import Path
 import torch
 
 
-def _rate(fn, steps: int, worlds: int, repeats: int, reset=lambda: None) -> float:
-    """Env-steps per second: the best of ``repeats`` timed rounds of ``steps`` calls, each round from ``reset()``
-    (on a shared machine the best round is the one least disturbed by other jobs)."""
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
+
+
+def _rate(fn, steps: int, worlds: int, repeats: int, reset=lambda: None, clock=time.perf_counter) -> float:
+    """Env-steps per second of ``clock``: the best of ``repeats`` timed rounds of ``steps`` calls, each round from
+    ``reset()`` (on a shared machine the best round is the one least disturbed by other jobs)."""
     fn()  # warm
     best = 0.0
     for _ in range(repeats):
         reset()
-        start = time.perf_counter()
+        start = clock()
         for _ in range(steps):
             fn()
-        best = max(best, steps * worlds / (time.perf_counter() - start))
+        best = max(best, steps * worlds / (clock() - start))
     return best
 
 
-def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
+def measure(name: str, worlds: int, steps: int, repeats: int, clock: str = "wall") -> dict:
     import mujoco
 
     from dexmots_rl.assets.hand_scene import hand_object_scene_xml
@@ -75,8 +79,9 @@ def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
         state["q"], state["qd"] = out.joint_q.detach(), out.joint_qd.detach()
 
     reset()
-    ours = _rate(forward, steps, worlds, repeats, reset)
-    ours_grad = _rate(forward_backward, steps, worlds, repeats, reset)
+    tick = CLOCKS[clock]
+    ours = _rate(forward, steps, worlds, repeats, reset, tick)
+    ours_grad = _rate(forward_backward, steps, worlds, repeats, reset, tick)
     m = mujoco.MjModel.from_xml_path(str(path))
     datas = [mujoco.MjData(m) for _ in range(worlds)]
 
@@ -84,10 +89,10 @@ def measure(name: str, worlds: int, steps: int, repeats: int) -> dict:
         for d in datas:
             mujoco.mj_step(m, d, nstep=sim.substeps)
 
-    theirs = _rate(mujoco_step, max(2, steps // 4), worlds, repeats)
+    theirs = _rate(mujoco_step, max(2, steps // 4), worlds, repeats, clock=tick)
     return {"object": name, "worlds": worlds, "ours_forward": round(ours), "ours_forward_backward": round(ours_grad),
             "mujoco": round(theirs), "ratio": round(ours / theirs, 2),
-            "backward_cost": round(ours / ours_grad, 2), "threads": cpu_threads(), "compile_s": round(compile_s, 1)}
+            "backward_cost": round(ours / ours_grad, 2), "threads": cpu_threads(), "clock": clock, "compile_s": round(compile_s, 1)}
 
 
 def main() -> None:
@@ -96,9 +101,12 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=256)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds per figure; the best is reported")
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="wall",
+                        help="wall: env-steps per second; cpu: per CPU-second of this process (with "
+                             "DEXMOTS_CPU_THREADS=1, one core each: other jobs on the machine move it little)")
     args = parser.parse_args()
     for name in args.objects:
-        print(json.dumps(measure(name, args.num_envs, args.steps, args.repeats)), flush=True)
+        print(json.dumps(measure(name, args.num_envs, args.steps, args.repeats, args.clock)), flush=True)
 
 
 if __name__ == "__main__":

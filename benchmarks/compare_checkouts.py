@@ -1,4 +1,4 @@
-"""Two checkouts of the library on one host: the same dynamics, and the speed of the knob and cube scenes.
+"""Two checkouts of the library on one host: the same dynamics (any task), and the speed of the knob and cube scenes.
 
     python benchmarks/compare_checkouts.py --old ../dexmots_rl-before --new . --rounds 3
 
@@ -28,7 +28,7 @@ def worker(tasks, out_path: str) -> None:
     import torch
 
     torch.set_num_threads(1)
-    from dexmots_rl.apps.bench_setup import bench_task, load_task_scene
+    from dexmots_rl.apps.bench_setup import bench_task, bench_tasks, load_task_scene
     from dexmots_rl.apps.bench_throughput import SimBench
     from dexmots_rl.envs import make_env, task_contact
 
@@ -45,6 +45,8 @@ def worker(tasks, out_path: str) -> None:
                 kept[name].append(td[key].clone())
             td = td["next"]
         rollouts[task] = {name: torch.stack(values) for name, values in kept.items()}
+        if task not in bench_tasks():  # a tool task: its speed is benchmarks/articulated_check.py's
+            continue
         bench = SimBench(*load_task_scene(task)[:1], bench_task(task), 256, "cpu", 16, 20, 16, "state",
                          task_contact(task))
         for kind, chunk in (("fwd", bench.forward_chunk), ("fwdbwd", bench.forward_backward_chunk)):
