@@ -217,6 +217,12 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         # kernel's body would be copied P times)
     ):
         w, link = wp.tid()  # link: f * J + k
+        if only_touching != 0:  # the adjoint launch: a link none of whose spheres touched has a zero adjoint
+            touched = int(0)
+            for sp in range(P):
+                touched = touched + touching[w, link * P + sp]
+            if touched == 0:
+                return
         f = link / J
         k_link = link - f * J
         # the chain up to the link, once for all its spheres: joint origins and axes, the link's frame
