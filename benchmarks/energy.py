@@ -44,12 +44,16 @@ def _energy_function(sim, params):
     return lambda q, qd: scene_object_energy(sim.scene, q[:, nu:], qd[:, nu:], stiffness, rest)
 
 
-def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold: int = 0) -> dict:
+def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold: int = 0,
+            substeps: int | None = None) -> dict:
     from dexmots_rl.envs import make_env
-    from dexmots_rl.sim import ArticulatedSimulator
+    from dexmots_rl.sim import ArticulatedSimulator, Simulator
 
     env = make_env(task, num_envs=worlds, seed=seed, raw=True, differentiable=False, **overrides)
     sim = env.sim
+    if substeps is not None:  # the same scene, contact law and env step, cut into more (or fewer) substeps
+        kind = ArticulatedSimulator if isinstance(sim, ArticulatedSimulator) else Simulator
+        sim = kind(sim.scene, worlds, contact=sim.contact, substeps=substeps, dt=sim.dt)
     td = env.reset()
     q, qd = td["sim", "joint_q"].clone(), td["sim", "joint_qd"].clone()
     params = {name: td["sim", "params", name] for name in sim.scene.param_names}
@@ -95,7 +99,8 @@ def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold
                 sign = draw()
     finite = bool(torch.isfinite(q).all() and torch.isfinite(qd).all())
     release = float(np.sum(sim.scene.link_mass)) * GRAVITY * HAND_DROP
-    return {"task": task, **overrides, "worlds": worlds, "steps": steps, "hold": hold, "free_base": bool(free),
+    return {"task": task, **overrides, "worlds": worlds, "steps": steps, "hold": hold, "substeps": sim.substeps,
+            "free_base": bool(free),
             "peak_base_speed": round(speed, 3), "peak_base_spin": round(spin, 2), "peak_height_gain": round(height, 4),
             "peak_joint_speed": round(joint_speed, 3),
             "fallen_worlds": int((~near).sum()) if free else 0, "max_energy_excess_j": round(float(excess.max()), 4),
@@ -114,6 +119,8 @@ def main(argv=None) -> None:
     parser.add_argument("--num-envs", type=int, default=64)
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--substeps", type=int, default=None,
+                        help="physics substeps per env step (default: the task's; more: a reference for the peaks)")
     parser.add_argument("--hold", type=int, default=0,
                         help="0: every sign flips every step; k > 0: new random signs every k steps, held between")
     args = parser.parse_args(argv)
@@ -122,7 +129,8 @@ def main(argv=None) -> None:
     runs = [(task, {}) for task in tasks]
     runs += [("operate", {"object": name}) for name in args.objects]
     for task, overrides in runs:
-        print(json.dumps(measure(task, args.num_envs, args.steps, args.seed, overrides, args.hold)), flush=True)
+        print(json.dumps(measure(task, args.num_envs, args.steps, args.seed, overrides, args.hold,
+                                 args.substeps)), flush=True)
 
 
 if __name__ == "__main__":
