@@ -1,19 +1,23 @@
 """Hand-written adjoints (``adj_polytope_sdf`` and ``adj_contact_force`` in contact_kernels.py,
 ``adj_link_inertia`` in kernels.py) against central finite differences, in float64: the knob's signed
-distance at face, edge and corner points, the contact law and a link's mass-matrix and bias-force
-contribution with respect to every differentiable input.
+distance at face, edge and corner points, the contact law (against a hinged and a free object) and a link's
+mass-matrix and bias-force contribution with respect to every differentiable input.
 
 No ``from __future__ import annotations`` here: warp reads the probe kernels' annotations.
 """
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 import torch
 import warp as wp
 
-from dexmots_rl.sim import Simulator
+from dexmots_rl.sim import Simulator, load_scene
 from dexmots_rl.sim.mjcf_shapes import SHAPE_SDF
 
 EPS = 1e-6
+FREE_BOX = Path(__file__).parent / "assets" / "free_box.xml"
 
 
 def _saved(ns, device, n, field):
@@ -94,7 +98,7 @@ def test_polytope_sdf_adjoint_matches_finite_differences(claw_scene):
     np.testing.assert_allclose(ad["p"], fd["p"], rtol=1e-5, atol=1e-6 * np.abs(fd["p"]).max())
 
 
-def _contact_kernel(ns, rad: float):
+def _contact_kernel(ns, rad: float, dt: float):
     @wp.kernel(module="unique")
     def probe(m: ns.Model, saved: ns.Saved, p: wp.array(dtype=ns.vec3), sd: wp.array(dtype=ns.vec4),
               Ro: wp.array(dtype=ns.mat33), xo: wp.array(dtype=ns.vec3), vo: wp.array(dtype=ns.vec3),
@@ -102,18 +106,21 @@ def _contact_kernel(ns, rad: float):
               qdf: wp.array(dtype=ns.vecJ), weight: wp.array(dtype=ns.vecC), out: wp.array(dtype=wp.float64)):
         i = wp.tid()
         res = ns.contact_force(m, p[i], wp.float64(rad), sd[i], Ro[i], xo[i], vo[i], wo[i], 0, A[i], O[i],
-                               qdf[i], saved, 0, i)
+                               qdf[i], wp.float64(dt), saved, 0, i)
         saved.contact[0, i] = res
         out[i] = wp.dot(res, weight[i])
 
     return probe
 
 
-def test_contact_force_adjoint_matches_finite_differences(claw_scene):
+@pytest.mark.parametrize("object_kind,dt", [("hinge", 0.0), ("hinge", 0.2), ("free", 0.02)])
+def test_contact_force_adjoint_matches_finite_differences(claw_scene, object_kind, dt):
     """Every differentiable input of the contact law (sphere centre, signed distance and normal, object
     pose and velocity, the finger's joint axes/origins and velocities), with sliding and near-sticking
-    tangential velocities."""
-    sim = Simulator(claw_scene, num_worlds=1, dtype=torch.float64)
+    tangential velocities; explicit normal damping (dt 0) and damping implicit against the object's mobility,
+    for the claw's hinged knob and a free box (dt 0.2 s and 0.02 s: dt kd stiffness mobility up to about 1)."""
+    scene = claw_scene if object_kind == "hinge" else load_scene(FREE_BOX)
+    sim = Simulator(scene, num_worlds=1, dtype=torch.float64)
     ns, rng = sim.kernels, np.random.default_rng(1)
     n, J, rad = 16, sim.scene.joints_per_finger, 0.08
 
@@ -137,7 +144,8 @@ def test_contact_force_adjoint_matches_finite_differences(claw_scene):
     types = {"p": ns.vec3, "sd": ns.vec4, "Ro": ns.mat33, "xo": ns.vec3, "vo": ns.vec3, "wo": ns.vec3,
              "A": ns.matJ3, "O": ns.matJ3, "qdf": ns.vecJ}
     weight = wp.array(rng.uniform(-1, 1, (n, 7 + J)), dtype=ns.vecC, device=sim.device)
-    ad, fd = _ad_and_fd(sim, _contact_kernel(ns, rad), inputs, types, weight, _saved(ns, sim.device, n, "contact"))
+    ad, fd = _ad_and_fd(sim, _contact_kernel(ns, rad, dt), inputs, types, weight,
+                        _saved(ns, sim.device, n, "contact"))
     for name in inputs:
         assert np.abs(fd[name]).max() > 0, name
         np.testing.assert_allclose(ad[name], fd[name], rtol=1e-5, atol=1e-6 * np.abs(fd[name]).max(), err_msg=name)

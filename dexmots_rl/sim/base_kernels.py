@@ -101,7 +101,8 @@ def build_base(t) -> types.SimpleNamespace:
         Rb = fixed_mat33(m.box_rot, b)
         cb = fixed_vec3(m.box_pos, b)
         sd = box_sdf(m, b, wp.transpose(Rb) * (p - cb))
-        return contact_force(m, p, rad, sd, Rb, cb, vec3(), vec3(), base, A, O, qdf, saved, row, slot)
+        # dt 0: explicit damping (the base does not move)
+        return contact_force(m, p, rad, sd, Rb, cb, vec3(), vec3(), base, A, O, qdf, dtype(0.0), saved, row, slot)
 
     @wp.func_replay(base_contact)
     def replay_base_contact(m: Model, p: vec3, rad: dtype, b: int, base: int, A: matJ3, O: matJ3, qdf: vecJ,

@@ -28,6 +28,7 @@ def build_contact(t) -> types.SimpleNamespace:
     mat33, vecJ, matJ3, vecC, mat43, Model, Saved, J, K, shape, hinges_only, box)."""
     dtype, vec3, vec4, mat33, vecJ, matJ3, vecC, mat43 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3, t.vecC, t.mat43
     Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
+    HINGE_OBJECT = t.hinge_object  # the object turns on a hinge (else it is a free body)
     BOX = t.box  # the convex object is an axis-aligned box (Model.obj_box_center / obj_box_half)
     trilinear = build_funcs(dtype).trilinear
 
@@ -233,8 +234,19 @@ def build_contact(t) -> types.SimpleNamespace:
         return a_A, a_O, a_p
 
     @wp.func
+    def object_mobility(m: Model, Ro: mat33, r: vec3, n: vec3):
+        """The object's inverse effective mass (1/kg) along n at r from its origin (world frame): a free
+        body's 1/m + (r x n)^T I^-1 (r x n) (its origin is its com), a hinge's (a . r x n)^2 / its axial
+        inertia."""
+        u = wp.transpose(Ro) * wp.cross(r, n)  # object frame
+        if wp.static(HINGE_OBJECT):
+            s = wp.dot(m.obj_axis, u)
+            return s * s / m.obj_axial_inertia
+        return dtype(1.0) / m.obj_mass + wp.dot(u, m.obj_inv_inertia * u)
+
+    @wp.func
     def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+                      A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int):
         """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
         (object frame) are ``sd``. Returns, packed in one vector: the force on the finger, its torque
         about xo ((contact point - xo) x force: the results of several contacts sum to their total force
@@ -252,7 +264,15 @@ def build_contact(t) -> types.SimpleNamespace:
             v_rel = wp.transpose(Jv) * qdf - vo - wp.cross(wo, cp - xo)
             vn = wp.dot(v_rel, n)
             sp = softplus(phi, m.beta)
-            fn = m.ke * sp * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            spring = m.ke * sp
+            # the normal damping (kd x spring) integrated implicitly along the normal against the object's
+            # mobility w there (the finger is far heavier): kd / (1 + dt kd spring w), so one substep never
+            # reverses the normal velocity. Explicit, it reverses and grows it once dt kd spring w passes 2, or
+            # less beside the contacts' stiffness (a light object pressed hard), and contact makes energy
+            kd = m.kd
+            if dt > dtype(0.0):
+                kd = kd / (dtype(1.0) + dt * m.kd * spring * object_mobility(m, Ro, cp - xo, n))
+            fn = spring * wp.max(dtype(1.0) - kd * vn, dtype(0.0))
             vt = v_rel - vn * n
             den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
             ft = -m.mu * fn / den * vt
@@ -274,12 +294,12 @@ def build_contact(t) -> types.SimpleNamespace:
 
     @wp.func_replay(contact_force)
     def replay_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
-                             base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+                             base: int, A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int):
         return saved.contact[row, slot]
 
     @wp.func_grad(contact_force)
     def adj_contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
-                          base: int, A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int,
+                          base: int, A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int,
                           adj_ret: vecC):
         # Hand-written reverse of contact_force (the generated one re-ran the whole law and then
         # differentiated it op by op): the forward's intermediates (saved), walked back.
@@ -299,9 +319,15 @@ def build_contact(t) -> types.SimpleNamespace:
             Jv = point_jacobian(m.jtype, base, A, O, cp)
             r = cp - xo
             vn = wp.dot(v_rel, n)
-            damp_arg = dtype(1.0) - m.kd * vn
+            spring = m.ke * sp
+            w = dtype(0.0)
+            kd = m.kd
+            if dt > dtype(0.0):
+                w = object_mobility(m, Ro, r, n)
+                kd = kd / (dtype(1.0) + dt * m.kd * spring * w)
+            damp_arg = dtype(1.0) - kd * vn
             damp = wp.max(damp_arg, dtype(0.0))
-            fn = m.ke * sp * damp
+            fn = spring * damp
             vt = v_rel - vn * n
             c = -m.mu / den
             fc = fn * n + c * fn * vt
@@ -323,10 +349,28 @@ def build_contact(t) -> types.SimpleNamespace:
             a_vrel = a_vt
             a_vn = -wp.dot(a_vt, n)
             a_n = a_n - vn * a_vt
-            # fn = ke softplus(phi) max(1 - kd vn, 0)
+            # fn = spring max(1 - kd' vn, 0), spring = ke softplus(phi), kd' = kd / (1 + dt kd spring w):
+            # d kd'/d spring = -kd'^2 dt w, d kd'/d w = -kd'^2 dt spring
+            a_spring = a_fn * damp
             if damp_arg > dtype(0.0):
-                a_vn = a_vn - m.kd * a_fn * m.ke * sp
-            a_phi = a_fn * m.ke * damp * law[3, 1]  # softplus' = sigmoid
+                a_vn = a_vn - kd * a_fn * spring
+                if dt > dtype(0.0):
+                    grow = a_fn * spring * vn * kd * kd * dt  # a_fn x d fn / d(spring w) / (the other factor)
+                    a_spring = a_spring + grow * w
+                    # w = mobility(u), u = Ro^T (r x n): its adjoint into Ro, r (cp, xo) and n
+                    u = wp.transpose(Ro) * wp.cross(r, n)
+                    a_u = vec3()
+                    if wp.static(HINGE_OBJECT):
+                        a_u = (grow * spring * dtype(2.0) * wp.dot(m.obj_axis, u) / m.obj_axial_inertia) * m.obj_axis
+                    else:
+                        a_u = (grow * spring * dtype(2.0)) * (m.obj_inv_inertia * u)
+                    a_rn = Ro * a_u
+                    wp.adjoint[Ro] += wp.outer(wp.cross(r, n), a_u)
+                    a_r_w = wp.cross(n, a_rn)
+                    a_n = a_n + wp.cross(a_rn, r)
+                    a_cp = a_cp + a_r_w
+                    wp.adjoint[xo] += -a_r_w
+            a_phi = a_spring * m.ke * law[3, 1]  # softplus' = sigmoid
             # vn = v_rel . n
             a_vrel = a_vrel + a_vn * n
             a_n = a_n + a_vn * v_rel
@@ -352,7 +396,7 @@ def build_contact(t) -> types.SimpleNamespace:
 
     @wp.func
     def point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                      A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+                      A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int):
         """Relaxed penalty contact of one finger sphere (centre p, radius rad) with the object.
 
         Returns :func:`contact_force`'s packed result: the force on the finger, its torque about xo, the
@@ -361,11 +405,11 @@ def build_contact(t) -> types.SimpleNamespace:
         sd = object_sdf(m, wp.transpose(Ro) * (p - xo), saved, row, slot)
         if saved.sdf.shape[0] > 0:
             saved.sdf[row, slot] = sd
-        return contact_force(m, p, rad, sd, Ro, xo, vo, wo, base, A, O, qdf, saved, row, slot)
+        return contact_force(m, p, rad, sd, Ro, xo, vo, wo, base, A, O, qdf, dt, saved, row, slot)
 
     @wp.func_replay(point_contact)
     def replay_point_contact(m: Model, p: vec3, rad: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
-                             A: matJ3, O: matJ3, qdf: vecJ, saved: Saved, row: int, slot: int):
+                             A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int):
         return saved.contact[row, slot]
 
     @wp.func(inline=True)  # called per sample sphere: out of line, each call copied the Model struct

@@ -113,6 +113,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         obj_com: vec3
         obj_inertia: mat33
         obj_axial_inertia: dtype  # hinge: inertia about the axis (constant, the body turns about it) + armature
+        obj_inv_inertia: mat33  # free: the inverse of obj_inertia (the contacts' implicit damping reads it)
         obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
         if OBJ_LIMITED:  # the hinge object's range (rad) and its limit spring (N m/rad)
             obj_lower: dtype
@@ -163,7 +164,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     contact = build_contact(types.SimpleNamespace(
         dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, mat43=mat43,
-        Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY, box=BOX))
+        Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY, box=BOX, hinge_object=OBJ_HINGE))
     unit_j, point_jacobian = contact.unit_j, contact.point_jacobian
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
     chain = build_chain(types.SimpleNamespace(
@@ -322,7 +323,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                     pi = i * P + sp
                     if sphere_near(m, x, R, pi, xo, Ro) != 0:
                         p = x + R * fixed_vec3(m.point_pos, pi)
-                        res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, saved, ro, pi)
+                        res = point_contact(m, p, m.point_radius[pi], Ro, xo, vo, wo, f * J, A, O, qdf, dt, saved, ro,
+                                            pi)
                         if saved.contact.shape[0] > 0:
                             saved.contact[ro, pi] = res
                         # summed as whole vectors: a per-component sum unrolls J adjoint updates per sphere
@@ -448,7 +450,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             # the palm's push on the object: part of the hand's wrench reported below (what the wrench
             # planner's external wrench stands for: all of the hand's push besides gravity), not of the
             # fingers' contact force sum (AHAC's contact budget)
-            palm_f, palm_t = palm_wrench(m, xo, Ro, vo, wo)
+            palm_f, palm_t = palm_wrench(m, xo, Ro, vo, wo, dt)
             ext_f = ext_f + palm_f
             ext_t = ext_t + palm_t
             hand_f = hand_f + palm_f

@@ -50,7 +50,10 @@ class ContactParams:
 
     The normal force is ``stiffness * softplus(sharpness * penetration) / sharpness``: it is smooth and
     non-zero slightly before touching, which is what gives useful gradients before contact is made.
-    ``damping`` (s/m) scales the force by ``max(1 - damping * v_normal, 0)`` (Hunt-Crossley style).
+    ``damping`` (s/m) scales the force by ``max(1 - damping * v_normal, 0)`` (Hunt-Crossley style); against a
+    moving object that damping (``damping * force``) is integrated implicitly along the normal, divided by
+    ``1 + dt * damping * force * w`` with ``w`` the object's mobility there, so that a substep never reverses the
+    normal velocity of a light object pressed hard (explicit, it did, and contact made energy).
     Friction is Coulomb with the slip velocity smoothed by ``slip_velocity``:
     ``f_t = -mu * f_n * v_t / sqrt(|v_t|^2 + slip_velocity^2)``. Near sticking this is a viscous damper of
     ``mu * f_n / slip_velocity`` integrated explicitly; at 0.02 m/s (about 1.5e4 N s/m on the claw) it is past

@@ -10,7 +10,8 @@ the contact only acts on the object (force + torque about its origin); nothing r
   the normal is the normalised gradient of the smooth max.
 * Law: the fingers' relaxed penalty law (:class:`~dexmots_rl.sim.ContactParams`) with the palm's
   stiffness and sharpness: ``f_n = ke_palm softplus(beta_palm phi) / beta_palm * max(1 - kd v_n, 0)`` with
-  ``phi = radius - distance``, and Coulomb friction smoothed by ``slip_velocity``.
+  ``phi = radius - distance``, and Coulomb friction smoothed by ``slip_velocity``; the damping of all samples
+  together, and their friction, are scaled down as dampers integrated implicitly (:func:`palm_wrench` says why).
 
 The reverse pass is warp's generated adjoint (loops over boxes and samples have compile-time trip counts
 and are unrolled; the kernel raises ``max_unroll`` to the number of samples), checked against central
@@ -47,23 +48,43 @@ def build_palm(t) -> types.SimpleNamespace:
         return vec4(d[0], n[0], n[1], n[2])
 
     @wp.func
-    def palm_point(m: Model, b: int, p: vec3, rad: dtype, xo: vec3, vo: vec3, wo: vec3):
-        """Force of palm box b on the object sample sphere (centre p, radius rad; the object moves with
-        origin velocity vo and angular velocity wo about xo), and the contact point."""
+    def palm_point(m: Model, b: int, p: vec3, rad: dtype, xo: vec3, vo: vec3, wo: vec3, inv_inertia: mat33):
+        """Palm box b against the object sample sphere (centre p, radius rad; the object moves with origin
+        velocity vo and angular velocity wo about xo, its com; ``inv_inertia``: its inverse inertia, world
+        frame): the force's elastic part, its normal damping, its friction and the contact point, and the
+        rates (1/s) of the damping and of the friction near sticking: their coefficients times the object's
+        mobility (inverse effective mass) along them."""
         sd = box_sdf(m, b, p)
         phi = rad - sd[0]
-        fc = vec3()
+        elastic = vec3()
+        damping = vec3()
+        friction = vec3()
+        rate_n = dtype(0.0)
+        rate_t = dtype(0.0)
         cp = p
         if phi > -dtype(CONTACT_CUTOFF) / m.palm_beta:
             n = vec3(sd[1], sd[2], sd[3])
             cp = p - n * rad
-            v = vo + wp.cross(wo, cp - xo)  # the object's material point at cp (the palm is still)
+            r = cp - xo
+            v = vo + wp.cross(wo, r)  # the object's material point at cp (the palm is still)
             vn = wp.dot(v, n)
-            fn = m.palm_ke * softplus(phi, m.palm_beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            spring = m.palm_ke * softplus(phi, m.palm_beta)
+            fn = spring * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
             vt = v - vn * n
-            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
-            fc = fn * n - (m.mu * fn / den) * vt
-        return fc, cp
+            drag = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)  # friction's viscous coefficient
+            elastic = spring * n
+            damping = (fn - spring) * n
+            friction = -drag * vt
+            # mobility along n, and its mean over the tangent plane: (trace - normal) / 2 of the point's
+            # mobility matrix 1/m I + [r]x^T I^-1 [r]x
+            rn = wp.cross(r, n)
+            inv_mass = dtype(1.0) / m.obj_mass
+            along_n = inv_mass + wp.dot(rn, inv_inertia * rn)
+            inv_trace = inv_inertia[0, 0] + inv_inertia[1, 1] + inv_inertia[2, 2]
+            trace = dtype(3.0) * inv_mass + wp.dot(r, r) * inv_trace - wp.dot(r, inv_inertia * r)
+            rate_n = m.kd * spring * along_n
+            rate_t = drag * dtype(0.5) * (trace - along_n)
+        return elastic, damping, friction, cp, rate_n, rate_t
 
     @wp.func
     def palm_near(m: Model, b: int, xo: vec3):
@@ -99,19 +120,44 @@ def build_palm(t) -> types.SimpleNamespace:
         return
 
     @wp.func
-    def palm_wrench(m: Model, xo: vec3, Ro: mat33, vo: vec3, wo: vec3):
-        """Net palm force on the object and its torque about the object origin xo (world frame)."""
-        f = vec3()
-        tq = vec3()
+    def palm_wrench(m: Model, xo: vec3, Ro: mat33, vo: vec3, wo: vec3, dt: dtype):
+        """Net palm force on the object and its torque about the object origin xo (world frame) over a
+        substep of dt.
+
+        Explicit, the samples' damping (or their friction near sticking) reverses and grows the object's
+        velocity each substep once its rate summed over the samples passes 2 / dt, or less beside the
+        palm's stiffness (a finger pressing a cube's edge into the palm; each sample alone stays below), and
+        contact makes energy. So each of the two is scaled by 1 / (1 + dt x its summed rate), as a damper
+        integrated implicitly (exactly so for one sample): one substep then never reverses the velocity.
+        """
+        elastic_f = vec3()
+        elastic_t = vec3()
+        damping_f = vec3()
+        damping_t = vec3()
+        friction_f = vec3()
+        friction_t = vec3()
+        rate_n = dtype(0.0)
+        rate_t = dtype(0.0)
+        inv_inertia = Ro * m.obj_inv_inertia * wp.transpose(Ro)
         for b in range(NB):
             if palm_near(m, b, xo) != 0:
                 for s in range(NS):
                     p = xo + Ro * fixed_vec3(m.obj_point_pos, s)
                     rad = fixed(m.obj_point_radius, s)
                     if palm_sample_near(m, b, p, rad) != 0:
-                        fc, cp = palm_point(m, b, p, rad, xo, vo, wo)
-                        f = f + fc
-                        tq = tq + wp.cross(cp - xo, fc)
-        return f, tq
+                        fe, fd, ff, cp, kn, kt = palm_point(m, b, p, rad, xo, vo, wo, inv_inertia)
+                        r = cp - xo
+                        elastic_f = elastic_f + fe
+                        elastic_t = elastic_t + wp.cross(r, fe)
+                        damping_f = damping_f + fd
+                        damping_t = damping_t + wp.cross(r, fd)
+                        friction_f = friction_f + ff
+                        friction_t = friction_t + wp.cross(r, ff)
+                        rate_n = rate_n + kn
+                        rate_t = rate_t + kt
+        scale_n = dtype(1.0) / (dtype(1.0) + dt * rate_n)
+        scale_t = dtype(1.0) / (dtype(1.0) + dt * rate_t)
+        return (elastic_f + scale_n * damping_f + scale_t * friction_f,
+                elastic_t + scale_n * damping_t + scale_t * friction_t)
 
     return types.SimpleNamespace(box_sdf=box_sdf, palm_point=palm_point, palm_wrench=palm_wrench)

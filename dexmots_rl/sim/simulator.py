@@ -19,7 +19,7 @@ from tensordict import TensorDict
 
 from .kernels import build_kernels
 from .mjcf_shapes import MAX_PLANES
-from .model import HINGE, ContactParams, SceneModel
+from .model import HINGE, OBJECT_HINGE, ContactParams, SceneModel
 from .stepper import Trajectory, launch_stream
 
 __all__ = ["Control", "StepOutput", "Simulator", "SimStep", "check_device"]
@@ -217,6 +217,10 @@ class Simulator:
         m.obj_axial_inertia = wdt(axis @ np.asarray(s.object_inertia) @ axis + s.object_mass * arm @ arm
                                   + s.object_armature)
         m.obj_bound = wdt(s.object_bound)
+        # a hinge's inertia may be singular off its axis (only the axial inertia is read for it)
+        inv_inertia = np.zeros((3, 3)) if s.object_kind == OBJECT_HINGE else np.linalg.inv(np.asarray(s.object_inertia,
+                                                                                                   dtype=np.float64))
+        m.obj_inv_inertia = k.mat33(*inv_inertia.ravel())
         if s.object_limited:
             m.obj_lower, m.obj_upper = wdt(s.object_range[0]), wdt(s.object_range[1])
             m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
