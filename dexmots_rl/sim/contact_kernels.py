@@ -235,13 +235,9 @@ def build_contact(t) -> types.SimpleNamespace:
 
     @wp.func
     def object_mobility(m: Model, Ro: mat33, r: vec3, n: vec3):
-        """The object's inverse effective mass (1/kg) along n at r from its origin (world frame): a free
-        body's 1/m + (r x n)^T I^-1 (r x n) (its origin is its com), a hinge's (a . r x n)^2 / its axial
-        inertia."""
+        """The free object's inverse effective mass (1/kg) along n at r from its origin (world frame):
+        1/m + (r x n)^T I^-1 (r x n) (its origin is its com)."""
         u = wp.transpose(Ro) * wp.cross(r, n)  # object frame
-        if wp.static(HINGE_OBJECT):
-            s = wp.dot(m.obj_axis, u)
-            return s * s / m.obj_axial_inertia
         return dtype(1.0) / m.obj_mass + wp.dot(u, m.obj_inv_inertia * u)
 
     @wp.func
@@ -268,10 +264,12 @@ def build_contact(t) -> types.SimpleNamespace:
             # the normal damping (kd x spring) integrated implicitly along the normal against the object's
             # mobility w there (the finger is far heavier): kd / (1 + dt kd spring w), so one substep never
             # reverses the normal velocity. Explicit, it reverses and grows it once dt kd spring w passes 2, or
-            # less beside the contacts' stiffness (a light object pressed hard), and contact makes energy
+            # less beside the contacts' stiffness (a light object pressed hard), and contact makes energy.
+            # A free object only: the hinged knob, far less mobile, makes none with the explicit law
             kd = m.kd
-            if dt > dtype(0.0):
-                kd = kd / (dtype(1.0) + dt * m.kd * spring * object_mobility(m, Ro, cp - xo, n))
+            if wp.static(not HINGE_OBJECT):
+                if dt > dtype(0.0):
+                    kd = kd / (dtype(1.0) + dt * m.kd * spring * object_mobility(m, Ro, cp - xo, n))
             fn = spring * wp.max(dtype(1.0) - kd * vn, dtype(0.0))
             vt = v_rel - vn * n
             den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
@@ -322,9 +320,10 @@ def build_contact(t) -> types.SimpleNamespace:
             spring = m.ke * sp
             w = dtype(0.0)
             kd = m.kd
-            if dt > dtype(0.0):
-                w = object_mobility(m, Ro, r, n)
-                kd = kd / (dtype(1.0) + dt * m.kd * spring * w)
+            if wp.static(not HINGE_OBJECT):
+                if dt > dtype(0.0):
+                    w = object_mobility(m, Ro, r, n)
+                    kd = kd / (dtype(1.0) + dt * m.kd * spring * w)
             damp_arg = dtype(1.0) - kd * vn
             damp = wp.max(damp_arg, dtype(0.0))
             fn = spring * damp
@@ -354,16 +353,12 @@ def build_contact(t) -> types.SimpleNamespace:
             a_spring = a_fn * damp
             if damp_arg > dtype(0.0):
                 a_vn = a_vn - kd * a_fn * spring
-                if dt > dtype(0.0):
+                if dt > dtype(0.0) and w > dtype(0.0):  # the implicit damping (a free object)
                     grow = a_fn * spring * vn * kd * kd * dt  # a_fn x d fn / d(spring w) / (the other factor)
                     a_spring = a_spring + grow * w
                     # w = mobility(u), u = Ro^T (r x n): its adjoint into Ro, r (cp, xo) and n
                     u = wp.transpose(Ro) * wp.cross(r, n)
-                    a_u = vec3()
-                    if wp.static(HINGE_OBJECT):
-                        a_u = (grow * spring * dtype(2.0) * wp.dot(m.obj_axis, u) / m.obj_axial_inertia) * m.obj_axis
-                    else:
-                        a_u = (grow * spring * dtype(2.0)) * (m.obj_inv_inertia * u)
+                    a_u = (grow * spring * dtype(2.0)) * (m.obj_inv_inertia * u)
                     a_rn = Ro * a_u
                     wp.adjoint[Ro] += wp.outer(wp.cross(r, n), a_u)
                     a_r_w = wp.cross(n, a_rn)
