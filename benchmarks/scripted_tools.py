@@ -1,0 +1,74 @@
+"""Open-loop scripted motions on the tool tasks: is a task solvable from its pre-grasp by a fixed joint motion?
+
+    python benchmarks/scripted_tools.py                               # every scripted task, 64 worlds, seeds 0-2
+    python benchmarks/scripted_tools.py --tasks scissors --num-envs 16 --seeds 0
+
+A row where every learning method scores 0 % says little unless the task can be done at all. Each script here
+starts from the task's own reset (its pre-grasp, its randomised object instance and parameters), ramps a few hand
+joints' PD targets away from the pre-grasp pose over ``--ramp`` steps, holds them to the episode's end and counts
+the task's own success (the operated joint in its band at the end, the free base moved < 2 cm and turned
+< 0.2 rad). The script sees nothing (no feedback), so its success is a floor on what a policy can reach, not a
+ceiling. It runs in each action space the task offers: ``vi`` at its highest stiffness (every stiffness action
++1), and ``position`` (the fixed stiffness).
+
+Scripts (joint index: offset in rad from the pre-grasp; Allegro order index 0-3, middle 4-7, ring 8-11, thumb
+12-15):
+
+* ``scissors``: the middle finger (in the moving half's ring) abducts to its limit (joint 4, -0.6, clamped at
+  -0.47) while the thumb (in the held half's ring) swings the other way about its base (joint 12, -0.7): the two
+  rings spread apart, as a person opens scissors.
+
+Prints one JSON line per task, action space and seed: the success rate over ``--num-envs`` worlds and the
+operated joint's mean final value against the goal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import torch
+
+SCRIPTS = {
+    "scissors": {12: -0.7, 4: -0.6},
+}
+
+
+def run_script(task: str, offsets: dict, action: str, num_envs: int, seed: int, ramp: int) -> dict:
+    """Success of the open-loop script ``offsets`` (joint index -> rad) on ``task`` over ``num_envs`` worlds."""
+    from dexmots_rl.envs import make_env
+
+    env = make_env(task, num_envs=num_envs, seed=seed, action=action, differentiable=False)
+    base, actions = env.base_env, env.base_env.actions
+    td = env.reset()
+    start = td["hand", "q"].clone()
+    for step in range(base.config.max_episode_steps):
+        targets = start.clone()
+        for joint, offset in offsets.items():
+            targets[:, joint] += offset * min(1.0, step / ramp)
+        a = actions.actions_for_targets(targets).clamp(-1.0, 1.0)
+        td["action"] = torch.cat([a, torch.ones_like(a)], -1) if action == "vi" else a
+        td = env.step(td)["next"]
+    return {"task": task, "action": action, "seed": seed, "num_envs": num_envs,
+            "success": round(td["success"].float().mean().item(), 4),
+            "joint_final_mean": round(td["object", "q"][:, base.joint_index].mean().item(), 4),
+            "goal": round(td["task", "goal"].mean().item(), 4)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=sorted(SCRIPTS), choices=sorted(SCRIPTS))
+    parser.add_argument("--actions", nargs="+", default=["vi", "position"], choices=["vi", "position"])
+    parser.add_argument("--num-envs", type=int, default=64)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--ramp", type=int, default=40, help="steps over which the targets move")
+    args = parser.parse_args()
+    for task in args.tasks:
+        for action in args.actions:
+            for seed in args.seeds:
+                print(json.dumps(run_script(task, SCRIPTS[task], action, args.num_envs, seed, args.ramp)),
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main()
