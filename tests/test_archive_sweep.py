@@ -1,0 +1,51 @@
+"""scripts/archive_sweep.py: a sweep's finished runs kept small enough for git, and not ignored by it."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = importlib.util.spec_from_file_location("archive_sweep", ROOT / "scripts" / "archive_sweep.py")
+archive_sweep = importlib.util.module_from_spec(SPEC)
+SPEC.loader.exec_module(archive_sweep)
+
+
+def _run(folder: Path, finished: bool = True) -> None:
+    folder.mkdir(parents=True)
+    (folder / "config.yaml").write_text("seed: 0\n")
+    rows = [{"iteration": 0, "env_steps": 10}, {"iteration": 1, "env_steps": 20},
+            {"iteration": 1, "eval_success_rate": 0.5}, {"iteration": 2, "env_steps": 30}]
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"torn')
+    (folder / "checkpoints").mkdir()
+    (folder / "checkpoints" / "last.pt").write_bytes(b"0" * 1000)
+    if finished:
+        (folder / "metrics.json").write_text(json.dumps({"success_rate": 0.5}))
+
+
+def test_archive_keeps_finished_runs_without_checkpoints_and_only_the_curve_rows(tmp_path):
+    sweep, out = tmp_path / "sweep", tmp_path / "archive"
+    _run(sweep / "runs" / "stapler" / "dexmots" / "vi" / "seed0")
+    _run(sweep / "runs" / "stapler" / "ppo" / "vi" / "seed0", finished=False)
+    (sweep / "runs.csv").write_text("task\n")
+    assert archive_sweep.archive(sweep, out) == 1
+    kept = out / "runs" / "stapler" / "dexmots" / "vi" / "seed0"
+    assert sorted(p.name for p in kept.iterdir()) == ["config.yaml", "metrics.json", "metrics.jsonl"]
+    rows = [json.loads(line) for line in (kept / "metrics.jsonl").read_text().splitlines()]
+    assert rows == [{"iteration": 1, "env_steps": 20}, {"iteration": 1, "eval_success_rate": 0.5}]
+    assert not (out / "runs" / "stapler" / "ppo").exists()
+    assert (out / "runs.csv").read_text() == "task\n"
+
+
+def test_archived_runs_under_results_are_not_ignored_by_git():
+    """results/<sweep>/runs/ holds the archived runs: git must keep them (every other runs/ folder is ignored)."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    probe = ["results/suite/runs/stapler/dexmots/vi/seed0/metrics.json", "runs/screw_claw_ahac/metrics.json"]
+    done = subprocess.run(["git", "check-ignore", "--no-index", *probe], cwd=ROOT, capture_output=True, text=True)
+    assert done.stdout.split() == [probe[1]]
