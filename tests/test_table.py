@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from dexmots_rl.apps import table
 from dexmots_rl.apps.table_spec import SweepSpecError
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from dexmots_rl.apps.table_writer import markdown_table, read_csv, time_to_success_table
+from dexmots_rl.apps.table_writer import markdown_table, quoted_table, read_csv, time_to_success_table
 
 KNOWN_CSV = """\
 task,method,action,seed,experiment,status,success,episodes,wall_clock_s,env_steps,time_to_90_s,env_steps_to_90,stopped_by,budget_wall_clock_s,budget_env_steps,run_dir
@@ -49,6 +49,26 @@ def test_the_writer_renders_a_known_csv_as_table_2(tmp_path):
     assert rows[0]["seed"] == 0 and rows[0]["success"] == 0.97 and rows[4]["success"] is None
     assert markdown_table(rows, TASKS, METHODS, seeds=2) == KNOWN_TABLE
     assert time_to_success_table(rows, TASKS, METHODS) == KNOWN_TIMES
+
+
+def test_the_quoted_paper_table_gives_the_papers_own_average_row(tmp_path):
+    """The paper's figures as configs/table/config.yaml quotes them: its five rows average to its Average row
+    (80.4 ± 5.0 for DexMOTS ...), so a mistyped figure shows; table.md quotes them under the measured table."""
+    from dexmots_rl import envs
+    from dexmots_rl.algorithms.registry import list_algorithms
+    from dexmots_rl.apps.table_spec import sweep_spec
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR / "table"), version_base="1.3"):
+        cfg = compose("config", overrides=["preset=suite", f"sweep_dir={tmp_path}"])
+    registered = envs.list_tasks()
+    spec = sweep_spec(cfg, list_algorithms(), registered, {t: envs.task_config(t).action for t in registered})
+    tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
+    text = quoted_table(spec.paper_table, tasks, [(m.name, m.label) for m in spec.methods])
+    lines = text.splitlines()
+    assert len(lines) == 2 + 5 + 1  # header, the paper's five rows (not the Allegro knob, not the new tools)
+    assert lines[0] == "| Environment | Ours | Ours (pose-only) | MPC | SAC | PPO | PGDM |"
+    assert lines[3] == "| Spray Bottle | 89.6 ± 2.9 | 63.4 ± 8.3 | 8.4 ± 4.3 | 47.8 ± 5.8 | 51.8 ± 8.7 | 83.8 ± 4.0 |"
+    assert lines[-1] == "| Average | 80.4 ± 5.0 | 69.5 ± 6.1 | 10.8 ± 3.3 | 40.8 ± 7.1 | 46.8 ± 5.8 | 70.3 ± 8.4 |"
 
 
 def _table_cfg(tmp_path, *overrides):
@@ -120,6 +140,8 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     (['method_overrides.ppo=["eval.every=-1"]'], "run screw_claw/ppo/vi/seed0: eval.every must be"),
     (["+launcher_params.partishun=gpu"], "launcher_params.partishun: the basic launcher has no field"),
     (["launcher=mpi"], "launcher must be one of"),
+    (["paper_table.screw_claw.ppo=[47.4]"], "paper_table.screw_claw.ppo must be [mean, s.d.] in %"),
+    (["+paper_table.nope={ppo:[1,2]}"], "paper_table: unknown task 'nope'"),
 ])
 def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, message):
     monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("a bad spec must not launch anything"))
@@ -149,6 +171,7 @@ def test_the_figures_and_table_come_from_the_run_directories(tmp_path, monkeypat
     assert "| Screw-top (Claw) | 55.0 ± 7.1 | 55.0 ± 7.1 |" in result["table"]
     assert "150 s of training wall-clock" in result["table"] and "wall_clock_s (4)" in result["table"]
     assert (sweep / "table.md").read_text() == result["table"]
+    assert "The paper's own Table 2" in result["table"] and "| Screw-top (Claw) | 92.6 ± 6.4 | 47.4 ± 3.8 |" in result["table"]
     assert len(read_csv(sweep / "runs.csv")) == 8
 
 

@@ -205,7 +205,7 @@ def _launch(loader, master, runs) -> dict[str, str]:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_writer import budget_cell, budget_text, markdown_table, time_to_success_table
+    from .table_writer import budget_cell, budget_text, markdown_table, quoted_table, time_to_success_table
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
     budgets = {t: spec.budget_of(t) for t in spec.tasks}
@@ -223,6 +223,10 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
              f"Training {_clock_words(budgets)} to 90 % success (mean over the runs that reached it, from the "
              "periodic and final evaluations; (reached/finished runs)):", "",
              time_to_success_table(table_rows, tasks, methods), ""]
+    if any(spec.paper_table.get(t) for t in spec.tasks):
+        lines += ["The paper's own Table 2 on the same tasks, quoted (not measured here: its simulator and hand "
+                  "models, its training budgets, five seeds; success % at its tasks' thresholds):", "",
+                  quoted_table(spec.paper_table, tasks, methods), ""]
     if outputs:
         lines += ["Figures: " + ", ".join(outputs), ""]
     notes = list(spec.notes)

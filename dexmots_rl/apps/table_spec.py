@@ -112,6 +112,8 @@ class SweepSpec:
     notes: tuple[str, ...] = ()
     #: task -> its own budget (``{"wall_clock_s", "env_steps", "cpu_s"}``), replacing ``budget`` for every method of it
     task_budgets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    #: task -> method -> (mean, s.d.) in %: the paper's own Table 2, quoted beside the measured one in table.md
+    paper_table: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
 
     def method(self, name: str) -> Method:
         return next(m for m in self.methods if m.name == name)
@@ -267,6 +269,28 @@ def _task_budgets(value, known: Sequence[str]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _paper_table(value, tasks: Sequence[str], methods: Sequence[str]) -> dict[str, dict[str, tuple[float, float]]]:
+    """``paper_table``: task -> method -> ``[mean, s.d.]`` (% success), the paper's figures quoted in table.md."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise SweepSpecError(f"paper_table must map task names to {{method: [mean, s.d.]}}, got {value!r}")
+    out = {}
+    for task, row in value.items():
+        if task not in tasks:
+            raise SweepSpecError(f"paper_table: unknown task {task!r}; known: {', '.join(dict.fromkeys(tasks))}")
+        if not isinstance(row, dict):
+            raise SweepSpecError(f"paper_table.{task} must map methods to [mean, s.d.], got {row!r}")
+        for method, cell in row.items():
+            if method not in methods:
+                raise SweepSpecError(f"paper_table.{task}: unknown method {method!r}; known: {', '.join(methods)}")
+            if (not isinstance(cell, list) or len(cell) != 2 or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 100 for v in cell)):
+                raise SweepSpecError(f"paper_table.{task}.{method} must be [mean, s.d.] in %, got {cell!r}")
+        out[task] = {method: (float(cell[0]), float(cell[1])) for method, cell in row.items()}
+    return out
+
+
 def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_actions: Mapping[str, str]) -> SweepSpec:
     """The checked spec of a ``dexmots-table`` config; ``algos``: what ``dexmots-train`` can run
     (``list_algorithms()``), ``registered``: ``list_tasks()``, ``default_actions``: each task's ``task.action``."""
@@ -314,7 +338,8 @@ def sweep_spec(cfg, algos: Sequence[str], registered: Sequence[str], default_act
         run_overrides=_override_list(c.get("run_overrides"), "run_overrides"),
         task_overrides=_per_name(c.get("task_overrides"), "task_overrides", list(registered), "task"),
         method_overrides=_per_name(c.get("method_overrides"), "method_overrides", list(catalog), "method"),
-        notes=tuple(notes))
+        notes=tuple(notes),
+        paper_table=_paper_table(c.get("paper_table"), [*registered, *(c.get("paper_tasks") or [])], list(catalog)))
 
 
 def run_identity(config) -> dict[str, Any]:

@@ -12,6 +12,8 @@ tables built from those rows alone, so a CSV can be rendered again (or tested) w
 * :func:`budget_text` — the sentence stating the training budget (one for all runs, or per task) and warning
   when the finished runs of one comparison had different budgets.
 * :func:`time_to_success_table` — the same layout for the mean training time to 90 % success.
+* :func:`quoted_table` — the same layout for figures quoted from elsewhere (the paper's own Table 2), with its
+  Average row computed by the same rule.
 
 Example:
     >>> rows = [{"task": "screw_claw", "method": "ppo", "experiment": "table", "status": "finished",
@@ -33,7 +35,7 @@ from typing import Iterable, Mapping, Sequence
 from ..algorithms.budget import NO_TRAINING
 
 __all__ = ["CSV_FIELDS", "NO_TRAINING", "budget_cell", "budget_clock", "budget_text", "learning_curve",
-           "markdown_table", "read_csv", "run_row", "time_to_success",
+           "markdown_table", "quoted_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
@@ -275,4 +277,25 @@ def time_to_success_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]]
             cells.append(f"{statistics.fmean(times):.0f} s ({len(times)}/{n})" if times else
                          (f"{DASH} (0/{n})" if n else DASH))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def quoted_table(quoted: Mapping[str, Mapping[str, tuple[float, float]]], tasks: Sequence[tuple[str, str]],
+                 methods: Sequence[tuple[str, str]]) -> str:
+    """Table 2's layout for quoted figures (task -> method -> (mean, s.d.) in %), the rows of ``tasks`` that
+    have any; the Average row (with more than one row) by :func:`markdown_table`'s rule, where every row has
+    the method."""
+    shown = [(task, label) for task, label in tasks if quoted.get(task)]
+    lines = _header(methods)
+    for task, label in shown:
+        cells = [f"{quoted[task][m][0]:.1f} ± {quoted[task][m][1]:.1f}" if m in quoted[task] else DASH
+                 for m, _ in methods]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    if len(shown) > 1:
+        cells = []
+        for method, _ in methods:
+            values = [quoted[task].get(method) for task, _ in shown]
+            cells.append(DASH if None in values else f"{statistics.fmean(v[0] for v in values):.1f} ± "
+                                                      f"{statistics.fmean(v[1] for v in values):.1f}")
+        lines.append("| Average | " + " | ".join(cells) + " |")
     return "\n".join(lines)
