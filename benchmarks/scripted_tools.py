@@ -34,24 +34,32 @@ SCRIPTS = {
 }
 
 
-def run_script(task: str, offsets: dict, action: str, num_envs: int, seed: int, ramp: int) -> dict:
-    """Success of the open-loop script ``offsets`` (joint index -> rad) on ``task`` over ``num_envs`` worlds."""
+def scripted_rollout(task: str, offsets: dict, action: str, num_envs: int, seed: int, ramp: int,
+                     steps: int | None = None):
+    """``(env, final tensordict)`` after ``steps`` (default: the episode's) steps of the open-loop script
+    ``offsets`` (joint index -> rad from the pre-grasp, reached after ``ramp`` steps) on ``task``."""
     from dexmots_rl.envs import make_env
 
     env = make_env(task, num_envs=num_envs, seed=seed, action=action, differentiable=False)
     base, actions = env.base_env, env.base_env.actions
     td = env.reset()
     start = td["hand", "q"].clone()
-    for step in range(base.config.max_episode_steps):
+    for step in range(base.config.max_episode_steps if steps is None else steps):
         targets = start.clone()
         for joint, offset in offsets.items():
             targets[:, joint] += offset * min(1.0, step / ramp)
         a = actions.actions_for_targets(targets).clamp(-1.0, 1.0)
         td["action"] = torch.cat([a, torch.ones_like(a)], -1) if action == "vi" else a
         td = env.step(td)["next"]
+    return env, td
+
+
+def run_script(task: str, offsets: dict, action: str, num_envs: int, seed: int, ramp: int) -> dict:
+    """Success of the open-loop script ``offsets`` (joint index -> rad) on ``task`` over ``num_envs`` worlds."""
+    env, td = scripted_rollout(task, offsets, action, num_envs, seed, ramp)
     return {"task": task, "action": action, "seed": seed, "num_envs": num_envs,
             "success": round(td["success"].float().mean().item(), 4),
-            "joint_final_mean": round(td["object", "q"][:, base.joint_index].mean().item(), 4),
+            "joint_final_mean": round(td["object", "q"][:, env.base_env.joint_index].mean().item(), 4),
             "goal": round(td["task", "goal"].mean().item(), 4)}
 
 

@@ -1,5 +1,8 @@
 """The task ``operate`` over every object of the library and over a PartNet-Mobility-style URDF."""
 
+import importlib.util
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -7,6 +10,11 @@ from dexmots_rl.assets.objects import list_objects
 from dexmots_rl.envs import make_env
 
 from partnet_fixtures import stapler
+
+_SPEC = importlib.util.spec_from_file_location(
+    "scripted_tools", Path(__file__).resolve().parents[1] / "benchmarks" / "scripted_tools.py")
+scripted_tools = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(scripted_tools)
 
 
 @pytest.mark.parametrize("name", [name for name, _ in list_objects()])
@@ -105,17 +113,10 @@ def test_scissors_open_when_the_thumb_and_middle_finger_spread():
     randomised instances over a whole episode). The fixed stiffness of ``position`` actions barely moves them."""
     opened = {}
     for action in ("vi", "position"):
-        env = make_env("scissors", num_envs=4, seed=0, action=action, differentiable=False)
+        # the benchmark's scissors script: thumb rotation -0.7 rad, middle abduction -0.6 (clamped at its limit)
+        env, td = scripted_tools.scripted_rollout("scissors", scripted_tools.SCRIPTS["scissors"], action,
+                                                  num_envs=4, seed=0, ramp=40, steps=60)
         base = env.base_env
-        td = env.reset()
-        start = td["hand", "q"].clone()
-        for step in range(60):
-            targets = start.clone()
-            targets[:, 12] -= 0.7 * min(1.0, step / 40)  # thumb rotation
-            targets[:, 4] -= 0.6 * min(1.0, step / 40)  # middle finger abduction (clamped at its limit)
-            a = base.actions.actions_for_targets(targets).clamp(-1.0, 1.0)
-            td["action"] = torch.cat([a, torch.ones_like(a)], -1) if action == "vi" else a
-            td = env.step(td)["next"]
         opened[action] = td["object", "q"][:, base.joint_index]
         if action == "vi":
             shift, tilt = base.base_motion({("object", "base_pose"): td["object", "base_pose"]})
