@@ -13,7 +13,8 @@ from omegaconf import OmegaConf
 from dexmots_rl.apps import table
 from dexmots_rl.apps.table_spec import SweepSpecError
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from dexmots_rl.apps.table_writer import markdown_table, quoted_table, read_csv, time_to_success_table
+from dexmots_rl.apps.table_writer import (machines_text, markdown_table, quoted_table, read_csv, run_row,
+                                          time_to_success_table)
 
 KNOWN_CSV = """\
 task,method,action,seed,experiment,status,success,episodes,wall_clock_s,env_steps,time_to_90_s,env_steps_to_90,stopped_by,budget_wall_clock_s,budget_env_steps,run_dir
@@ -49,6 +50,29 @@ def test_the_writer_renders_a_known_csv_as_table_2(tmp_path):
     assert rows[0]["seed"] == 0 and rows[0]["success"] == 0.97 and rows[4]["success"] is None
     assert markdown_table(rows, TASKS, METHODS, seeds=2) == KNOWN_TABLE
     assert time_to_success_table(rows, TASKS, METHODS) == KNOWN_TIMES
+
+
+def test_the_table_says_which_machines_commits_and_dates_its_runs_had(tmp_path):
+    """Each finished run's machine, commit and date come from its metrics.json's provenance into runs.csv, and
+    table.md counts them (a sweep resumed on another machine says so)."""
+    from types import SimpleNamespace
+
+    rows = []
+    for seed, (cpu, commit, date) in enumerate([("AMD EPYC", "aaa1111", "2026-12-05T10:00:00+00:00"),
+                                                ("AMD EPYC", "aaa1111", "2026-12-06T09:00:00+00:00"),
+                                                ("Intel Xeon", "bbb2222", "2026-12-06T11:00:00+00:00")]):
+        run = SimpleNamespace(task="screw_claw", method="dexmots", action="vi", seed=seed, experiment="table",
+                              run_dir=tmp_path / f"seed{seed}")
+        metrics = {"success_rate": 1.0, "iterations": 0, "provenance": {"cpu": cpu, "cores": 2, "commit": commit,
+                                                                        "date": date}}
+        rows.append(run_row(run, metrics, "finished"))
+    rows.append(run_row(SimpleNamespace(task="screw_claw", method="ppo", action="vi", seed=0, experiment="table",
+                                        run_dir=tmp_path / "ppo"), None, "failed"))
+    assert rows[2]["machine"] == "Intel Xeon, 2 cores" and rows[2]["date"] == "2026-12-06"
+    assert machines_text(rows) == ("Runs by machine: AMD EPYC, 2 cores (2), Intel Xeon, 2 cores (1); commits "
+                                   "aaa1111 (2), bbb2222 (1); 2026-12-05 to 2026-12-06.")
+    assert machines_text(rows[:1]) == "Runs by machine: AMD EPYC, 2 cores (1); commit aaa1111; 2026-12-05."
+    assert machines_text(rows[3:]) is None
 
 
 def test_the_quoted_paper_table_gives_the_papers_own_average_row(tmp_path):

@@ -205,13 +205,15 @@ def _launch(loader, master, runs) -> dict[str, str]:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_writer import budget_cell, budget_text, markdown_table, quoted_table, time_to_success_table
+    from .table_writer import (budget_cell, budget_text, machines_text, markdown_table, quoted_table,
+                               time_to_success_table)
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
     budgets = {t: spec.budget_of(t) for t in spec.tasks}
     per_task = len({budget_cell(b) for b in budgets.values()}) > 1  # then a Budget column states each
     methods = [(m.name, m.label) for m in spec.methods]
     table_rows = [r for r in rows if r["experiment"] == "table"]
+    machines = machines_text(table_rows)  # the machines, commits and dates the runs had
     episodes = sorted({r["episodes"] for r in table_rows if r["episodes"] is not None})
     ep_text = "–".join(str(e) for e in (episodes[0], episodes[-1])) if len(episodes) > 1 else (
         str(episodes[0]) if episodes else "the")
@@ -220,6 +222,7 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
              f"mean ± s.d. over seeds {', '.join(map(str, spec.seeds))}. {budget_text(budgets, table_rows)}",
              "", markdown_table(table_rows, tasks, methods, seeds=len(spec.seeds),
                                 budgets={t: budget_cell(b) for t, b in budgets.items()} if per_task else None), "",
+             *([machines, ""] if machines else []),
              f"Training {_clock_words(budgets)} to 90 % success (mean over the runs that reached it, from the "
              "periodic and final evaluations; (reached/finished runs)):", "",
              time_to_success_table(table_rows, tasks, methods), ""]

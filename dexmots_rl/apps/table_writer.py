@@ -35,12 +35,12 @@ from typing import Iterable, Mapping, Sequence
 from ..algorithms.budget import NO_TRAINING
 
 __all__ = ["CSV_FIELDS", "NO_TRAINING", "budget_cell", "budget_clock", "budget_text", "learning_curve",
-           "markdown_table", "quoted_table", "read_csv", "run_row", "time_to_success",
+           "machines_text", "markdown_table", "quoted_table", "read_csv", "run_row", "time_to_success",
            "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
               "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
-              "budget_env_steps", "budget_cpu_s", "run_dir")
+              "budget_env_steps", "budget_cpu_s", "machine", "commit", "date", "run_dir")
 _INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps")
 _FLOATS = ("success", "wall_clock_s", "cpu_s", "time_to_90_s", "budget_wall_clock_s", "budget_cpu_s")
 DASH = "–"  # a cell without finished runs
@@ -109,6 +109,10 @@ def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> d
                    env_steps=metrics.get("env_steps"), stopped_by=budget.get("stopped_by") if trained else NO_TRAINING,
                    budget_wall_clock_s=budget.get("wall_clock_s"), budget_env_steps=budget.get("env_steps"),
                    budget_cpu_s=budget.get("cpu_s"))
+        made = metrics.get("provenance") or {}  # where and when the run trained (dexmots_rl.provenance)
+        if made.get("cpu"):
+            row.update(machine=f"{made['cpu']}, {made.get('cores', '?')} cores")
+        row.update(commit=made.get("commit"), date=(made.get("date") or "")[:10] or None)
         if reached is not None:  # on the budget's clock
             row.update(time_to_90_s=reached.get(budget_clock(budget)), env_steps_to_90=reached["env_steps"])
     return row
@@ -217,6 +221,31 @@ def budget_text(budgets: Mapping[str, Mapping], rows: Sequence[dict]) -> str:
                  + " had different budgets within the task** (runs.csv: budget_wall_clock_s, budget_env_steps, "
                  "budget_cpu_s); "
                  "remove the odd ones' directories and rerun")
+    return text + "."
+
+
+def machines_text(rows: Sequence[dict]) -> str | None:
+    """Which machines, commits and dates the finished ``rows`` ran on (runs.csv's ``machine``, ``commit``,
+    ``date``), e.g. "Runs by machine: AMD EPYC, 2 cores (86), Intel Xeon, 2 cores (40); commit 14eda8d;
+    2026-12-06." (None without any)."""
+    finished = [r for r in rows if r["status"] == "finished"]
+
+    def counted(key):
+        counts: dict[str, int] = {}
+        for r in finished:
+            if r.get(key):
+                counts[r[key]] = counts.get(r[key], 0) + 1
+        return counts
+
+    machines, commits, dates = counted("machine"), counted("commit"), sorted(counted("date"))
+    if not machines:
+        return None
+    text = "Runs by machine: " + ", ".join(f"{m} ({n})" for m, n in sorted(machines.items()))
+    if commits:
+        text += "; " + ("commit " if len(commits) == 1 else "commits ") + ", ".join(
+            f"{c} ({n})" if len(commits) > 1 else c for c, n in sorted(commits.items()))
+    if dates:
+        text += "; " + (dates[0] if len(dates) == 1 else f"{dates[0]} to {dates[-1]}")
     return text + "."
 
 
