@@ -16,7 +16,7 @@ from dexmots_rl.algorithms.evaluation import evaluate_policy
 from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from dexmots_rl.envs import make_env
+from dexmots_rl.envs import list_tasks, make_env
 
 TINY = ["algo=pgdm", "task.num_envs=4", "task.max_episode_steps=6", "eval.episodes=2", "progress=false",
         "checkpoint_every=1", "algo.frames_per_batch=24", "algo.total_frames=48", "algo.minibatch_size=12",
@@ -107,6 +107,26 @@ def test_training_env_and_deployable_policy_see_the_same_observation(tmp_path):
         td_plain = plain.step(td_plain.set("action", action))["next"]
     torch.testing.assert_close(module(td_plain.clone())["observation"], td["observation"])
     assert td["observation"].shape[-1] == 27 and td["pgdm_reward"].shape == (4, 1)
+
+
+@pytest.mark.parametrize("task", list_tasks())
+def test_every_task_gets_an_observation_of_the_width_pgdm_declares(tmp_path, task):
+    """On every registered task (the tools' free bases included: the part's angle and rate and the base's pose),
+    the training env's transform writes an observation of the width its spec declares (what the normaliser and
+    the networks are built for), and the deployable policy's module rebuilds the same one on the plain env."""
+    cfg = _cfg(tmp_path, f"task={task}", "task.num_envs=2")
+    env = make_env(cfg.task, differentiable=False, seed=0)
+    env.append_transform(pgdm.PGDMObservation(cfg.algo))
+    plain = make_env(cfg.task, differentiable=False, seed=0)
+    td, td_plain = env.reset(), plain.reset()
+    action = torch.zeros(2, env.action_spec.shape[-1])
+    td, td_plain = env.step(td.set("action", action))["next"], plain.step(td_plain.set("action", action))["next"]
+    width = env.observation_spec["observation"].shape[-1]
+    assert td["observation"].shape == (2, width) and torch.isfinite(td["observation"]).all()
+    module = pgdm.policy_observation(cfg.algo, plain)
+    torch.testing.assert_close(module(td_plain.clone())["observation"], td["observation"])
+    if ("object", "base_pose") in td_plain.keys(True, True):
+        assert ("object", "base_pose") in module.in_keys
 
 
 @pytest.mark.parametrize("action", ["vi", "position"])

@@ -10,13 +10,14 @@ What PGDM changes (everything else, the evaluation included, is the task's and P
 * **Observation** (:class:`PGDMObservation`, the training env's transform; the same features rebuilt in front of
   the deployable policy by :func:`policy_observation`, so ``dexmots-eval`` runs it on the plain task env):
   proprioception (hand joint positions and velocities, fingertip positions: our PPO's), the object's state
-  (an articulated part's angles and rates; a free body's pos + wxyz quat and its 6 velocities), the
-  reference object coordinates at ``t + k`` for ``k`` in ``algo.target_offsets`` (1, 5, 10: the task's own
-  reference, :meth:`~dexmots_rl.envs.base.DexEnv.goal_window`, the one the ``pose_traj`` goals read), then
-  ``sin(τ f)`` for ``f`` in ``algo.time_frequencies`` (1, 4, 6, 8) and the same cosines, τ = step / episode
-  length. Width: ``2 nu + 3 F + (2 K | 13) + len(offsets) D + 2 len(frequencies)``. On a mirrored task
-  (``task.mirror``) the worlds with a negative goal see these features reflected, as the task's own
-  observation is.
+  (an articulated part's angles and rates, and a tool's base pose, pos + wxyz quat; a free body's pos + wxyz
+  quat and its 6 velocities), the reference object coordinates at ``t + k`` for ``k`` in
+  ``algo.target_offsets`` (1, 5, 10: the task's own reference, :meth:`~dexmots_rl.envs.base.DexEnv.goal_window`,
+  the one the ``pose_traj`` goals read), then ``sin(τ f)`` for ``f`` in ``algo.time_frequencies`` (1, 4, 6, 8)
+  and the same cosines, τ = step / episode length. Width: ``2 nu + 3 F + (2 K [+ 7] | 13) + len(offsets) D +
+  2 len(frequencies)`` (K: the part's joints as the task observes them; D: the reference's coordinates per
+  step, ``goal_window_widths``). On a mirrored task (``task.mirror``) the worlds with a negative goal see these
+  features reflected, as the task's own observation is.
 * **Reward** (:func:`tracking_reward`), what the critic and the advantages see (``"pgdm_reward"``; the logged
   ``"reward"`` stays the task's): ``10 exp(-50 (‖p - p̄‖ + 0.1 θ(q, q̄) / π)) + 2.5 [lifted]`` against the
   reference at the current step. A hinged part's pose error is its angle error: its body turns about the
@@ -85,10 +86,15 @@ class PGDMFeatures:
     the reward's constants)."""
 
     def __init__(self, task_env, algo):
-        scene = task_env.sim.scene
+        scene, spec = task_env.sim.scene, task_env.observation_spec
         self.articulated, self.nu, self.num_fingers = bool(scene.articulated), task_env.sim.nu, scene.num_fingers
-        self.coords = scene.object_nq if self.articulated else 7
-        object_state = 2 * scene.object_nq if self.articulated else 7 + 6
+        self.coords = task_env.goal_window_widths()[0]  # the reference's object coordinates per step
+        # the object's state as the task env writes it: a part's angles and rates (and, for a tool, its base's
+        # pose: a free base must be held), or a free body's pose and velocities
+        self.object_keys = [("object", "q") if self.articulated else ("object", "pose"), ("object", "qd")]
+        if self.articulated and ("object", "base_pose") in spec.keys(True, True):
+            self.object_keys.append(("object", "base_pose"))
+        object_state = sum(spec[key].shape[-1] for key in self.object_keys)
         self.episode_steps = task_env.max_episode_steps
         # a bound method, not the env: the env is an nn.Module and must not become a submodule of a policy
         self._window = task_env.goal_window
@@ -108,8 +114,7 @@ class PGDMFeatures:
         targets = sized(maps["goal_error"], len(self.offsets) * self.coords, "the reference targets")
         return SignedPermutation.concat([
             maps[("hand", "q")], maps[("hand", "qd")], maps[("fingertips", "pos")],
-            maps[("object", "q")] if self.articulated else maps[("object", "pose")], maps[("object", "qd")],
-            targets, SignedPermutation.identity(2 * len(self.frequencies))])
+            *[maps[key] for key in self.object_keys], targets, SignedPermutation.identity(2 * len(self.frequencies))])
 
     def targets(self, td: TensorDictBase, offsets) -> torch.Tensor:
         """The reference object coordinates at ``step + offsets`` [N, len(offsets), D]."""
@@ -119,12 +124,12 @@ class PGDMFeatures:
 
     def observation(self, td: TensorDictBase) -> torch.Tensor:
         """The policy input [N, width] (unnormalised)."""
-        obj = [td.get(("object", "q"))] if self.articulated else [td.get(("object", "pose"))]
+        obj = [td.get(key) for key in self.object_keys]
         dtype = obj[0].dtype
         tau = td.get(("task", "step")).to(dtype) / self.episode_steps  # [N, 1]
         freqs = torch.as_tensor(self.frequencies, dtype=dtype, device=tau.device)
         parts = [td.get(("hand", "q")), td.get(("hand", "qd")), td.get(("fingertips", "pos")).flatten(1), *obj,
-                 td.get(("object", "qd")), self.targets(td, self.offsets).to(dtype).flatten(1),
+                 self.targets(td, self.offsets).to(dtype).flatten(1),
                  torch.sin(tau * freqs), torch.cos(tau * freqs)]
         obs = torch.cat(parts, -1)
         # a mirrored task's worlds with a negative goal act in the mirror, so they must also see it
@@ -199,7 +204,8 @@ class PGDMPolicyObservation(TensorDictModuleBase):
         super().__init__()
         self.features, self.width = features, features.width
         self.in_keys = [("hand", "q"), ("hand", "qd"), ("fingertips", "pos"), ("object", "q"), ("object", "pose"),
-                        ("object", "qd"), ("task", "step"), ("task", "goal"), ("task", "ref_index")]
+                        ("object", "qd"), ("task", "step"), ("task", "goal"), ("task", "ref_index"),
+                        *[key for key in features.object_keys if key == ("object", "base_pose")]]
         self.out_keys = ["observation"]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
