@@ -41,6 +41,17 @@ SCRIPTS = {
 }
 
 
+def _drive(env, td, offsets: torch.Tensor, action: str, ramp: int, steps: int):
+    """The final tensordict after ``steps`` steps from ``td`` whose PD targets move from the pre-grasp by
+    ``offsets`` [N, nu] (rad), reached after ``ramp`` steps (``vi``: at the highest stiffness)."""
+    actions, start = env.base_env.actions, td["hand", "q"].clone()
+    for step in range(steps):
+        a = actions.actions_for_targets(start + offsets * min(1.0, step / ramp)).clamp(-1.0, 1.0)
+        td["action"] = torch.cat([a, torch.ones_like(a)], -1) if action == "vi" else a
+        td = env.step(td)["next"]
+    return td
+
+
 def scripted_rollout(task: str, offsets: dict, action: str, num_envs: int, seed: int, ramp: int,
                      steps: int | None = None):
     """``(env, final tensordict)`` after ``steps`` (default: the episode's) steps of the open-loop script
@@ -48,44 +59,37 @@ def scripted_rollout(task: str, offsets: dict, action: str, num_envs: int, seed:
     from dexmots_rl.envs import make_env
 
     env = make_env(task, num_envs=num_envs, seed=seed, action=action, differentiable=False)
-    base, actions = env.base_env, env.base_env.actions
     td = env.reset()
-    start = td["hand", "q"].clone()
-    for step in range(base.config.max_episode_steps if steps is None else steps):
-        targets = start.clone()
-        for joint, offset in offsets.items():
-            targets[:, joint] += offset * min(1.0, step / ramp)
-        a = actions.actions_for_targets(targets).clamp(-1.0, 1.0)
-        td["action"] = torch.cat([a, torch.ones_like(a)], -1) if action == "vi" else a
-        td = env.step(td)["next"]
-    return env, td
+    per_joint = torch.zeros_like(td["hand", "q"])
+    for joint, offset in offsets.items():
+        per_joint[:, joint] = offset
+    steps = env.base_env.config.max_episode_steps if steps is None else steps
+    return env, _drive(env, td, per_joint, action, ramp, steps)
 
 
 def search_script(task: str, batches: int, num_envs: int, seed: int, ramp: int, scale: float = 0.6) -> dict:
     """The open-loop script (every hand joint's offset from the pre-grasp, rad) that drives ``task``'s operated
     joint farthest toward its goal with the base held (score: 2 for a success, else the fraction of the way
-    from the joint's start to the goal while the base moved < 2 cm and tilted < 0.2 rad, else 0): a third of ``batches`` of ``num_envs`` random sparse scripts (one per world),
-    then a cross-entropy search around the six best so far (Gaussian steps of 0.12 rad)."""
+    from the joint's start to the goal while the base moved < 2 cm and tilted < 0.2 rad, else 0): a third of
+    ``batches`` of ``num_envs`` random sparse scripts (one per world), then a cross-entropy search around the
+    six best so far (Gaussian steps of 0.12 rad)."""
     from dexmots_rl.envs import make_env
 
     env = make_env(task, num_envs=num_envs, seed=seed, action="vi", differentiable=False)
-    base, actions = env.base_env, env.base_env.actions
+    base = env.base_env
     generator = torch.Generator().manual_seed(seed)
-    scored: list[tuple[float, list[float]]] = []  # (progress toward the goal at the episode end, offsets)
+    scored: list[tuple[float, list[float]]] = []  # (score, offsets), best first
     for batch in range(batches):
         td = env.reset()
-        start, joint0 = td["hand", "q"].clone(), td["object", "q"][:, base.joint_index].clone()
+        shape, joint0 = td["hand", "q"].shape, td["object", "q"][:, base.joint_index].clone()
         if batch < batches // 3 or not scored:
-            offsets = (torch.rand(start.shape, generator=generator) * 2 - 1) * scale
-            offsets *= (torch.rand(start.shape, generator=generator) < 0.4).to(offsets)
+            offsets = (torch.rand(shape, generator=generator) * 2 - 1) * scale
+            offsets *= (torch.rand(shape, generator=generator) < 0.4).to(offsets)
         else:
-            elite = torch.tensor([row for _, row in scored[:6]], dtype=start.dtype)
+            elite = torch.tensor([row for _, row in scored[:6]], dtype=td["hand", "q"].dtype)
             pick = torch.randint(0, len(elite), (num_envs,), generator=generator)
-            offsets = (elite[pick] + 0.12 * torch.randn(start.shape, generator=generator)).clamp(-1.2, 1.2)
-        for step in range(base.config.max_episode_steps):
-            a = actions.actions_for_targets(start + offsets * min(1.0, step / ramp)).clamp(-1.0, 1.0)
-            td["action"] = torch.cat([a, torch.ones_like(a)], -1)
-            td = env.step(td)["next"]
+            offsets = (elite[pick] + 0.12 * torch.randn(shape, generator=generator)).clamp(-1.2, 1.2)
+        td = _drive(env, td, offsets, "vi", ramp, base.config.max_episode_steps)
         progress = (td["object", "q"][:, base.joint_index] - joint0) / (td["task", "goal"][:, 0] - joint0)
         shift, tilt = base.base_motion({("object", "base_pose"): td["object", "base_pose"]})
         held = (shift < base.config.max_base_shift) & (tilt < base.config.max_base_tilt)
