@@ -14,7 +14,8 @@ from tensordict import TensorDict
 
 from dexmots_rl.algorithms import ppo, sac
 from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
-from dexmots_rl.algorithms.common import deployable_policy, make_train_env, sync_obs_norm, tanh_gaussian_actor
+from dexmots_rl.algorithms.common import (RunningObsNorm, deployable_policy, make_train_env, sync_obs_norm,
+                                          tanh_gaussian_actor)
 from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
@@ -95,6 +96,23 @@ def test_deployable_policy_normalises_the_plain_env_like_the_training_env():
     sync_obs_norm(policy, vecnorm)
     normalised = policy[0](TensorDict(observation=td_plain["observation"], batch_size=[3]))["observation"]
     torch.testing.assert_close(normalised, td["observation"], rtol=1e-4, atol=1e-4)
+
+
+def test_running_obs_norm_stays_finite_on_features_that_do_not_move():
+    # 1001 constant features (a resting tool base's height, its orientation, ...) for ~164k env steps: the bias
+    # correction reaches 1 in float32 and torchrl's E[x²] - E[x]² turns negative on some of them (the NaNs that
+    # stopped PGDM's tool runs); the normaliser must keep every feature finite and at the scale of its spread
+    still = torch.linspace(-0.1, 1.0, 1001).expand(4096, -1)
+    moving = torch.randn(4096, 3, generator=torch.Generator().manual_seed(0)) * 2.0 + 5.0
+    norm = RunningObsNorm(in_keys=["observation"], reduce_batch_dims=True, decay=0.9999)
+    for _ in range(40):
+        data = TensorDict(observation=torch.cat([still, moving], -1), batch_size=[4096])
+        out = norm._step(data.clone(), data.clone())["observation"]
+    assert torch.isfinite(out).all()
+    loc, scale = norm._get_loc_scale()
+    torch.testing.assert_close(loc["observation"][:1001], still[0], rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(scale["observation"][1001:], torch.full((3,), 2.0), rtol=0.05, atol=0.0)
+    assert bool((scale["observation"][:1001] < 1e-2).all())  # a still feature: eps or rounding, not NaN
 
 
 def test_sac_refuses_resume(tmp_path):  # its replay buffer is not in the checkpoint

@@ -1,8 +1,8 @@
 """Pieces the model-free baselines (PPO, SAC, PGDM) share: the training env, the policy, the loop's end.
 
 * :func:`make_train_env` — ``make_env(task, differentiable=False)`` (plus a method's own transforms, e.g.
-  PGDM's observation and reward) and torchrl's ``VecNorm`` (new API), a clip on ``"observation"`` and an
-  episode-return counter: the env the collector steps.
+  PGDM's observation and reward) and torchrl's ``VecNorm`` (new API; :class:`RunningObsNorm`, its variance
+  kept >= 0), a clip on ``"observation"`` and an episode-return counter: the env the collector steps.
 * :func:`tanh_gaussian_actor` — a ``ProbabilisticActor`` (``TanhNormal`` within the env's action bounds) on an
   MLP; the scale is state-independent (PPO) or a second head (SAC).
 * :class:`ObsNorm` / :func:`deployable_policy` — the training env's normalisation frozen into a module in
@@ -24,7 +24,8 @@ import warnings
 import torch
 from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.envs import ClipTransform, RewardSum, VecNorm
+from torchrl.envs import ClipTransform, RewardSum
+from torchrl.envs.transforms.vecnorm import VecNormV2
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from ..progress import progress_bar
@@ -32,12 +33,30 @@ from ..envs import make_env
 from .budget import RunBudget, TrainingClock
 from .rundir import RunDirectory
 
-__all__ = ["CollectorLoop", "ObsNorm", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
+__all__ = ["CollectorLoop", "ObsNorm", "RunningObsNorm", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
            "policy_from_data", "sync_obs_norm", "tanh_gaussian_actor"]
 
 log = logging.getLogger(__name__)
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+class RunningObsNorm(VecNormV2):
+    """torchrl's ``VecNorm`` (new API) whose variance cannot go negative.
+
+    It keeps running means of ``x`` and ``x²`` and takes ``var = E[x²] - E[x]²``. On a feature that does not
+    move (a tool's base at rest on the table: its height, its orientation) the two terms are equal up to
+    rounding, and once the running mean's bias correction reaches 1 in float32 (``decay ** count`` below
+    ~6e-8: ~165k env steps at decay 0.9999) the difference is as often -1e-10 as +1e-10; its square root is
+    NaN, and that NaN reaches every world's observation and action. Keeping ``E[x²] >= E[x]²`` after each
+    update leaves every other feature's statistics unchanged (bit for bit) and gives a still feature the
+    scale ``eps``, as an exactly constant one already had."""
+
+    @torch.no_grad()
+    def _stateful_update(self, data):
+        super()._stateful_update(data)
+        if not self.frozen:
+            self._var.apply_(lambda second_moment, mean: torch.maximum(second_moment, mean.square()), self._loc)
 
 
 def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float = 10.0, transforms=()):
@@ -48,7 +67,7 @@ def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float =
     for transform in transforms:
         env.append_transform(transform)
     # reduce_batch_dims: the worlds are one batch of samples of the same distribution, not separate streams
-    vecnorm = VecNorm(in_keys=["observation"], new_api=True, reduce_batch_dims=True, decay=norm_decay)
+    vecnorm = RunningObsNorm(in_keys=["observation"], reduce_batch_dims=True, decay=norm_decay)
     with warnings.catch_warnings():  # "experimental for a batched env": it is what reduce_batch_dims is for
         warnings.filterwarnings("ignore", message="Support of VecNormV2", category=UserWarning)
         env.append_transform(vecnorm)
