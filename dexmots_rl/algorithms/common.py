@@ -69,7 +69,7 @@ def make_train_env(cfg, seed: int, norm_decay: float = 0.9999, obs_clip: float =
     # reduce_batch_dims: the worlds are one batch of samples of the same distribution, not separate streams
     vecnorm = RunningObsNorm(in_keys=["observation"], reduce_batch_dims=True, decay=norm_decay)
     with warnings.catch_warnings():  # "experimental for a batched env": it is what reduce_batch_dims is for
-        warnings.filterwarnings("ignore", message="Support of VecNormV2", category=UserWarning)
+        warnings.filterwarnings("ignore", message=r"Support of \w+ for containers", category=UserWarning)
         env.append_transform(vecnorm)
         env.append_transform(ClipTransform(in_keys=["observation"], low=-obs_clip, high=obs_clip))
         env.append_transform(RewardSum())
