@@ -4,8 +4,8 @@ Three env-steps/s figures per world count, from the same task env (``make_env(ta
 
 * ``kernel``: ``Simulator.step`` alone with the env's own control of a fixed action (no Python around it);
 * ``rollout``: ``env.rollout(T)`` with a 64x64 tanh MLP actor (the env's transforms included);
-* ``collector``: a stock torchrl ``Collector`` over the env with ``VecNorm`` on the observation and the
-  same actor, ``frames_per_batch = num_envs * T``.
+* ``collector``: a stock torchrl ``Collector`` over the env with the baselines' observation normaliser
+  (torchrl's ``VecNorm``, :class:`~dexmots_rl.algorithms.common.RunningObsNorm`) and the same actor, ``frames_per_batch = num_envs * T``.
 
 ``rollout_fraction`` and ``collector_fraction`` are those divided by ``kernel``: the share of the
 simulator's speed a training loop keeps. torch runs with ``--torch-threads`` intra-op threads (1, as
@@ -37,8 +37,8 @@ def _actor(env):
 
 def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: str = "cpu") -> dict:
     from torchrl.collectors import Collector
-    from torchrl.envs import VecNorm
 
+    from ..algorithms.common import RunningObsNorm
     from ..envs import make_env
 
     env = make_env(task, num_envs=num_envs, differentiable=False, seed=0, device=device)
@@ -68,7 +68,7 @@ def pipeline_row(task: str, num_envs: int, steps: int, min_time: float, device: 
     normed = make_env(task, num_envs=num_envs, differentiable=False, seed=0, device=device)
     with warnings.catch_warnings():  # VecNorm's "experimental with a batch size", the collector's InitTracker note
         warnings.simplefilter("ignore")
-        normed.append_transform(VecNorm(in_keys=["observation"], new_api=True, reduce_batch_dims=True))
+        normed.append_transform(RunningObsNorm(in_keys=["observation"], reduce_batch_dims=True))
         collector = Collector(normed, _actor(normed), frames_per_batch=num_envs * steps, total_frames=-1)
     batches = iter(collector)
     next(batches)  # warm-up
