@@ -13,8 +13,8 @@ from omegaconf import OmegaConf
 from dexmots_rl.apps import table
 from dexmots_rl.apps.table_spec import SweepSpecError
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
-from dexmots_rl.apps.table_writer import (machines_text, markdown_table, quoted_table, read_csv, run_row,
-                                          time_to_success_table)
+from dexmots_rl.apps.table_writer import (action_space_table, machines_text, markdown_table, quoted_table,
+                                          read_csv, run_row, time_to_success_table)
 
 KNOWN_CSV = """\
 task,method,action,seed,experiment,status,success,episodes,wall_clock_s,env_steps,time_to_90_s,env_steps_to_90,stopped_by,budget_wall_clock_s,budget_env_steps,run_dir
@@ -40,6 +40,12 @@ KNOWN_TIMES = """\
 | Screw-top (Claw) | 50 s (2/2) | – (0/1) |
 | Screw-top (Allegro) | 25 s (2/2) | – |"""
 
+KNOWN_ACTIONS = """\
+| method | torque | vi |
+|---|---:|---:|
+| Ours | 10: 10.0 | 97 / 93: 95.0 ± 2.8 (50 s, 2/2) |
+| PPO | – | 50: 50.0 |"""
+
 TASKS = [("screw_claw", "Screw-top (Claw)"), ("allegro_rotate", "Screw-top (Allegro)")]
 METHODS = [("dexmots", "Ours"), ("ppo", "PPO")]
 
@@ -50,6 +56,8 @@ def test_the_writer_renders_a_known_csv_as_table_2(tmp_path):
     assert rows[0]["seed"] == 0 and rows[0]["success"] == 0.97 and rows[4]["success"] is None
     assert markdown_table(rows, TASKS, METHODS, seeds=2) == KNOWN_TABLE
     assert time_to_success_table(rows, TASKS, METHODS) == KNOWN_TIMES
+    # Fig. 3b in numbers: the table's vi runs count for vi, the failed run for nothing
+    assert action_space_table(rows, "screw_claw", METHODS, ["torque", "vi"]) == KNOWN_ACTIONS
 
 
 def test_the_table_says_which_machines_commits_and_dates_its_runs_had(tmp_path):

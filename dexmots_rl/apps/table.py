@@ -205,8 +205,8 @@ def _launch(loader, master, runs) -> dict[str, str]:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_writer import (budget_cell, budget_text, machines_text, markdown_table, quoted_table,
-                               time_to_success_table)
+    from .table_writer import (action_space_table, budget_cell, budget_text, machines_text, markdown_table,
+                               quoted_table, time_to_success_table)
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
     budgets = {t: spec.budget_of(t) for t in spec.tasks}
@@ -230,6 +230,11 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
         lines += ["The paper's own Table 2 on the same tasks, quoted (not measured here: its simulator and hand "
                   "models, its training budgets, five seeds; success % at its tasks' thresholds):", "",
                   quoted_table(spec.paper_table, tasks, methods), ""]
+    for task in spec.ablation_tasks:
+        lines += [f"Success by action space on {spec.task_labels[task]} (Fig. 3b; % per seed, in seed order: "
+                  "mean ± s.d., and the mean time to 90 % of the runs that got there):", "",
+                  action_space_table(rows, task, [(m, spec.method(m).label) for m in spec.ablation_methods],
+                                     spec.actions), ""]
     if outputs:
         lines += ["Figures: " + ", ".join(outputs), ""]
     notes = list(spec.notes)
