@@ -52,6 +52,48 @@ def test_hinged_part_reward_is_its_angle_error(tmp_path):
     assert not far.any()  # a hinged part never ends the episode early
 
 
+def test_a_sliding_part_is_tracked_in_metres_and_a_tools_base_is_tracked(tmp_path):
+    """The pump's head slides: its error is a position (m), not an angle, so 5 mm off its reference costs
+    10 (1 - e^-0.25), not the 0.1 / pi-weighted sliver an angle would. A free base's shift (m) and tilt (rad)
+    against where it stood are the tool's pose error too (the stapler: a hinge on a free base)."""
+    cfg = _cfg(tmp_path, "task=pump_dispenser")
+    env = make_env(cfg.task, num_envs=2, differentiable=False, seed=0)
+    features = pgdm.PGDMFeatures(env.base_env, cfg.algo)
+    assert features.slides
+    td = env.reset()
+    ref = env.base_env.goal_window(td, td["task", "step"], False)[:, 0]
+    q = td["object", "q"].clone()
+    part = features.part
+    q[:, part] = ref[:, 0] + torch.tensor([0.0, 0.005])
+    td.set(("object", "q"), q)
+    td.set(("object", "base_pose"), env.base_env._base0.expand(2, 7).clone())  # the base where it stood
+    reward, _ = features.reward_and_far(td)
+    torch.testing.assert_close(reward.flatten(), torch.tensor([10.0, 10 * math.exp(-50 * 0.005)]),
+                               rtol=1e-4, atol=1e-4)
+
+    cfg = _cfg(tmp_path, "task=stapler")
+    env = make_env(cfg.task, num_envs=3, differentiable=False, seed=0)
+    features = pgdm.PGDMFeatures(env.base_env, cfg.algo)
+    assert not features.slides
+    td = env.reset()
+    ref = env.base_env.goal_window(td, td["task", "step"], False)[:, 0]
+    q = td["object", "q"].clone()
+    q[:, features.part] = ref[:, 0]
+    td.set(("object", "q"), q)
+    base = env.base_env._per_world("_base0", td).expand(3, 7).clone()
+    base[1, 0] += 0.01  # shifted 1 cm
+    half = 0.5 * 0.3  # tilted 0.3 rad about x: wxyz quaternion (cos, sin, 0, 0) composed with the start
+    tilt = torch.tensor([math.cos(half), math.sin(half), 0.0, 0.0], dtype=base.dtype)
+    w1, x1, y1, z1 = tilt
+    w2, x2, y2, z2 = base[2, 3:]
+    base[2, 3:] = torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                               w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+    td.set(("object", "base_pose"), base)
+    reward, _ = features.reward_and_far(td)
+    expected = [10.0, 10 * math.exp(-50 * 0.01), 10 * math.exp(-50 * 0.1 * 0.3 / math.pi)]
+    torch.testing.assert_close(reward.flatten(), torch.tensor(expected), rtol=1e-4, atol=1e-4)
+
+
 def test_free_object_reward_and_early_termination(tmp_path):
     cfg = _cfg(tmp_path, "task=repose_cube")
     env = make_env(cfg.task, num_envs=3, differentiable=False, seed=0)

@@ -20,11 +20,16 @@ What PGDM changes (everything else, the evaluation included, is the task's and P
   features reflected, as the task's own observation is.
 * **Reward** (:func:`tracking_reward`), what the critic and the advantages see (``"pgdm_reward"``; the logged
   ``"reward"`` stays the task's): ``10 exp(-50 (‖p - p̄‖ + 0.1 θ(q, q̄) / π)) + 2.5 [lifted]`` against the
-  reference at the current step. A hinged part's pose error is its angle error: its body turns about the
-  fixed hinge axis, so the position error of its frame is 0 and the rotation angle between the part and its
-  reference is exactly ``|θ - θ̄|`` (the norm over the joints for several). The lift bonus (reference and
-  object both ≥ 2 cm above the reference's start height) and the early termination (object ≥ 0.25 m from
-  its reference) only exist for free objects.
+  reference at the current step. An articulated object's pose error is its tracked part's, in the units of
+  its joint: a hinged part turns about the hinge axis, so its frame's position error is 0 and its rotation
+  angle is exactly ``|θ - θ̄|``; a sliding part (a pump's head, a drawer) moves along the axis, so its
+  position error is ``|x - x̄|`` in m and its rotation 0. The tracked part is the task's operated joint
+  (``joint_index``; a knob task's knob). A tool with a base adds the base's error against the reference,
+  which holds the base where it stood: its shift (m) to the position error and its tilt (rad) to the
+  rotation error (the task's ``base_motion``; zeros for a base fixed to the world), so knocking a tool over
+  costs PGDM reward as it fails the task. The lift bonus (reference and object both ≥ 2 cm above the
+  reference's start height) and the early termination (object ≥ 0.25 m from its reference) only exist for
+  free objects.
 * **Start**: nothing changes. The tool tasks (spray_bottle, scissors, stapler, ...: library objects free on
   the table) start from their object's pre-grasps (``task.initial="pregrasp"``), the knob tasks from their
   grasp (``task.initial="grasp"``): the starts DexMOTS uses (the paper gives PGDM DexMOTS's grasp and no CEM
@@ -50,6 +55,7 @@ from torchrl.data import Composite, Unbounded
 from ..envs.mirror import SignedPermutation, reflect_mirrored, sized
 from ..envs.transforms import StateTransform
 from ..quaternions import quat_angle
+from ..sim.object_model import SLIDE
 from . import ppo
 from .common import policy_from_data
 
@@ -106,6 +112,14 @@ class PGDMFeatures:
         self.width = (2 * self.nu + 3 * self.num_fingers + object_state + len(self.offsets) * self.coords
                       + 2 * len(self.frequencies))
         self.reflection = self._reflection(task_env) if task_env.config.mirror else None
+        # the tracked part of an articulated object (its column of ("object", "q")), whether it slides (its
+        # error is then a position, in m), and the base's (shift m, tilt rad) from where it stood; bound
+        # methods and plain values, not the env (an nn.Module must not become a submodule of a policy)
+        self.part = getattr(task_env, "joint_index", None)
+        tree = getattr(task_env.sim, "tree", None)
+        self.slides = bool(self.articulated and tree is not None and self.part is not None
+                           and tree.joint_kind[self.part] == SLIDE)
+        self._base_motion = getattr(task_env, "base_motion", None) if self.articulated else None
 
     def _reflection(self, task_env) -> SignedPermutation:
         """The observation's reflection for a mirrored task (``task.mirror``): the task's per-entry maps; the
@@ -138,10 +152,16 @@ class PGDMFeatures:
     def errors(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """``(position error [N, 1] m, rotation error [N, 1] rad, lifted [N, 1] or None)`` of the object
         against the reference at the current step."""
-        if self.articulated:  # a hinged part: the pose error is its angle error (module docstring)
-            angle = td.get(("object", "q"))
-            ref = self.targets(td, [0])[:, 0].to(angle.dtype)
-            return torch.zeros_like(angle[:, :1]), (angle - ref).norm(dim=-1, keepdim=True), None
+        if self.articulated:  # the tracked part's joint error, plus a base's motion (module docstring)
+            q = td.get(("object", "q"))
+            q = q if self.part is None else q[:, self.part:self.part + 1]
+            error = (q - self.targets(td, [0])[:, 0].to(q.dtype)).norm(dim=-1, keepdim=True)
+            zero = torch.zeros_like(error)
+            pos_error, rot_error = (error, zero) if self.slides else (zero, error)
+            if self._base_motion is not None:
+                shift, tilt = self._base_motion(td)
+                pos_error, rot_error = pos_error + shift.to(q.dtype), rot_error + tilt.to(q.dtype)
+            return pos_error, rot_error, None
         pose = td.get(("object", "pose"))
         ref = self.targets(td, [0])[:, 0].to(pose.dtype)
         start_z = self._window(td, torch.zeros_like(td.get(("task", "step"))), False)[:, 0, 2:3].to(pose.dtype)
