@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import sys
 import types
 
@@ -52,6 +53,21 @@ def test_load_object_hands_urdf_paths_to_the_urdf_loader(monkeypatch):
     monkeypatch.setitem(sys.modules, "dexmots_rl.assets.objects.urdf", fake)
     assert load_object("data/7310/mobility.urdf", size=0.15) == "loaded"
     assert calls == [("data/7310/mobility.urdf", {"size": 0.15})]
+
+
+def test_a_second_build_replaces_the_mesh_files_rather_than_rewriting_them(tmp_path):
+    """Runs that build the same scene side by side (a sweep's seeds) share its folder: a rebuild must move
+    complete files in (a new inode, the old one intact for a reader that holds it), never truncate a mesh
+    that another process's MuJoCo compiler is reading."""
+    a = asset("jar_a")
+    a.mjcf(tmp_path)
+    path = tmp_path / "jar_a_lid.obj"
+    before = path.read_bytes()
+    with open(path, "rb") as reader:
+        a.mjcf(tmp_path)
+        assert reader.read() == before
+        assert path.stat().st_ino != os.fstat(reader.fileno()).st_ino
+    assert path.read_bytes() == before and not list(tmp_path.glob(".*.tmp"))
 
 
 def test_load_object_is_deterministic():

@@ -30,6 +30,8 @@ from typing import Literal
 
 import numpy as np
 
+from ...atomic import atomic_write
+
 __all__ = ["Geom", "Joint", "Part", "GraspRegion", "ObjectAsset", "ObjectError", "MAX_MOVING_PARTS", "GEOM_KINDS",
            "FINGERS"]
 
@@ -218,7 +220,10 @@ class ObjectAsset:
         assets = []
         for name, mesh in self.meshes.items():
             path = mesh_dir / f"{self.name}_{name}.obj"
-            mesh.export(path)
+            # atomically: runs that build the same scene side by side (a sweep's seeds) rewrite these files
+            # while another one's MuJoCo compiler may be reading them
+            text = mesh.export(file_type="obj")
+            atomic_write(path, lambda f, text=text: f.write(text.encode()))
             assets.append(f'    <mesh name="{self.name}_{name}" file="{path.resolve()}"/>\n')
         children: dict[str | None, list[Part]] = {}
         for part in self.parts[1:]:

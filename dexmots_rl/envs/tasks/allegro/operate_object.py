@@ -45,13 +45,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-import tempfile
 from pathlib import Path
 from typing import ClassVar, Optional
 
 import torch
 from tensordict import TensorDict
 
+from ....atomic import atomic_write
 from ....quaternions import quat_angle
 from ....sim import ContactParams
 from ....sim.object_model import SLIDE
@@ -163,11 +163,9 @@ def _write_scene(asset, key: str) -> Path:
 
     folder = scene_dir(key)
     folder.mkdir(parents=True, exist_ok=True)
-    xml = hand_object_scene_xml(asset, folder)
-    with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".xml", delete=False) as tmp:
-        tmp.write(xml)
+    xml = hand_object_scene_xml(asset, folder)  # writes the mesh files, each atomically
     path = folder / "scene.xml"
-    os.replace(tmp.name, path)
+    atomic_write(path, lambda f: f.write(xml.encode()))
     return path
 
 
