@@ -17,6 +17,7 @@ from dexmots_rl.algorithms.registry import policy_from_checkpoint
 from dexmots_rl.apps.eval import main as eval_main
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
 from dexmots_rl.envs import list_tasks, make_env
+from dexmots_rl.quaternions import quat_multiply
 
 TINY = ["algo=pgdm", "task.num_envs=4", "task.max_episode_steps=6", "eval.episodes=2", "progress=false",
         "checkpoint_every=1", "algo.frames_per_batch=24", "algo.total_frames=48", "algo.minibatch_size=12",
@@ -84,10 +85,7 @@ def test_a_sliding_part_is_tracked_in_metres_and_a_tools_base_is_tracked(tmp_pat
     base[1, 0] += 0.01  # shifted 1 cm
     half = 0.5 * 0.3  # tilted 0.3 rad about x: wxyz quaternion (cos, sin, 0, 0) composed with the start
     tilt = torch.tensor([math.cos(half), math.sin(half), 0.0, 0.0], dtype=base.dtype)
-    w1, x1, y1, z1 = tilt
-    w2, x2, y2, z2 = base[2, 3:]
-    base[2, 3:] = torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                               w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+    base[2, 3:] = quat_multiply(tilt, base[2, 3:])
     td.set(("object", "base_pose"), base)
     reward, _ = features.reward_and_far(td)
     expected = [10.0, 10 * math.exp(-50 * 0.01), 10 * math.exp(-50 * 0.1 * 0.3 / math.pi)]

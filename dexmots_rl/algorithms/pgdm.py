@@ -115,11 +115,9 @@ class PGDMFeatures:
         # the tracked part of an articulated object (its column of ("object", "q")), whether it slides (its
         # error is then a position, in m), and the base's (shift m, tilt rad) from where it stood; bound
         # methods and plain values, not the env (an nn.Module must not become a submodule of a policy)
-        self.part = getattr(task_env, "joint_index", None)
-        tree = getattr(task_env.sim, "tree", None)
-        self.slides = bool(self.articulated and tree is not None and self.part is not None
-                           and tree.joint_kind[self.part] == SLIDE)
-        self._base_motion = getattr(task_env, "base_motion", None) if self.articulated else None
+        self.part = getattr(task_env, "joint_index", None) if self.articulated else None  # None: a knob task's
+        self.slides = bool(self.part is not None and task_env.sim.tree.joint_kind[self.part] == SLIDE)
+        self._base_motion = getattr(task_env, "base_motion", None) if self.part is not None else None
 
     def _reflection(self, task_env) -> SignedPermutation:
         """The observation's reflection for a mirrored task (``task.mirror``): the task's per-entry maps; the

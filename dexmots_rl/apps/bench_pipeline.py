@@ -5,7 +5,8 @@ Three env-steps/s figures per world count, from the same task env (``make_env(ta
 * ``kernel``: ``Simulator.step`` alone with the env's own control of a fixed action (no Python around it);
 * ``rollout``: ``env.rollout(T)`` with a 64x64 tanh MLP actor (the env's transforms included);
 * ``collector``: a stock torchrl ``Collector`` over the env with the baselines' observation normaliser
-  (torchrl's ``VecNorm``, :class:`~dexmots_rl.algorithms.common.RunningObsNorm`) and the same actor, ``frames_per_batch = num_envs * T``.
+  (torchrl's ``VecNorm``, :class:`~dexmots_rl.algorithms.common.RunningObsNorm`) and the same actor,
+  ``frames_per_batch = num_envs * T``.
 
 ``rollout_fraction`` and ``collector_fraction`` are those divided by ``kernel``: the share of the
 simulator's speed a training loop keeps. torch runs with ``--torch-threads`` intra-op threads (1, as

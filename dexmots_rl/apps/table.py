@@ -258,7 +258,7 @@ def _clock_words(budgets) -> str:
 
 def _figures(spec, runs, rows: list[dict]) -> list[str]:
     from ..viz.table_plots import plot_action_spaces, plot_learning_curves
-    from .table_writer import budget_clock, learning_curve
+    from .table_writer import action_space_runs, budget_clock, learning_curve
 
     import matplotlib.pyplot as plt
 
@@ -277,7 +277,8 @@ def _figures(spec, runs, rows: list[dict]) -> list[str]:
     for task in spec.ablation_tasks:
         out = spec.sweep_dir / f"action_space_{task}.png"
         methods = [(m, spec.method(m).label) for m in spec.ablation_methods]
-        plt.close(plot_action_spaces(rows, task, spec.task_labels[task], methods, spec.actions, out))
+        values = {key: [100 * float(r["success"]) for r in done] for key, done in action_space_runs(rows, task).items()}
+        plt.close(plot_action_spaces(values, spec.task_labels[task], methods, spec.actions, out))
         written.append(out.name)
     return written
 

@@ -36,9 +36,9 @@ from typing import Iterable, Mapping, Sequence
 
 from ..algorithms.budget import NO_TRAINING
 
-__all__ = ["CSV_FIELDS", "NO_TRAINING", "action_space_table", "budget_cell", "budget_clock", "budget_text", "learning_curve",
-           "machines_text", "markdown_table", "quoted_table", "read_csv", "run_row", "time_to_success",
-           "time_to_success_table", "write_csv"]
+__all__ = ["CSV_FIELDS", "NO_TRAINING", "action_space_runs", "action_space_table", "budget_cell", "budget_clock",
+           "budget_text", "learning_curve", "machines_text", "markdown_table", "quoted_table", "read_csv", "run_row",
+           "time_to_success", "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
               "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
@@ -311,20 +311,27 @@ def time_to_success_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]]
     return "\n".join(lines)
 
 
-def action_space_table(rows: Iterable[dict], task: str, methods: Sequence[tuple[str, str]],
-                       actions: Sequence[str]) -> str:
-    """``task``'s success (%) per method (rows, ``(name, label)`` pairs) and action space (columns) over its
-    finished runs of every experiment (the table's own ``vi`` runs count for ``vi``): each seed's value in seed
-    order, their mean ± s.d. and, where runs reached 90 %, the mean time to it (``(46 s, 3/3)``)."""
+def action_space_runs(rows: Iterable[dict], task: str) -> dict[tuple[str, str], list[dict]]:
+    """``task``'s finished runs of every experiment (the table's own ``vi`` runs count for ``vi``) by
+    ``(method, action)``, each list in seed order: what Fig. 3b shows."""
     runs: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
         if r["task"] == task and r.get("status") == "finished" and r.get("success") is not None:
             runs.setdefault((r["method"], r["action"]), []).append(r)
+    return {key: sorted(done, key=lambda r: r["seed"]) for key, done in runs.items()}
+
+
+def action_space_table(rows: Iterable[dict], task: str, methods: Sequence[tuple[str, str]],
+                       actions: Sequence[str]) -> str:
+    """``task``'s success (%) per method (rows, ``(name, label)`` pairs) and action space (columns) over
+    :func:`action_space_runs`: each seed's value in seed order, their mean ± s.d. and, where runs reached
+    90 %, the mean time to it (``(46 s, 3/3)``)."""
+    runs = action_space_runs(rows, task)
     lines = ["| method | " + " | ".join(actions) + " |", "|---|" + "---:|" * len(actions)]
     for method, label in methods:
         cells = []
         for action in actions:
-            done = sorted(runs.get((method, action), []), key=lambda r: r["seed"])
+            done = runs.get((method, action), [])
             if not done:
                 cells.append(DASH)
                 continue

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import statistics
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import matplotlib
 
@@ -95,14 +95,11 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[dict]]], labels:
     return fig
 
 
-def plot_action_spaces(rows: Iterable[dict], task: str, title: str, methods: Sequence[tuple[str, str]],
-                       actions: Sequence[str], out: str | Path | None = None):
-    """Bars of ``task``'s success (%) per action space (groups) and method (bars, ``(name, label)`` pairs)
-    over the finished runs among ``rows`` (``runs.csv`` rows); error bars: sample s.d. over seeds."""
-    values: dict[tuple[str, str], list[float]] = {}
-    for r in rows:
-        if r["task"] == task and r.get("status") == "finished" and r.get("success") is not None:
-            values.setdefault((r["method"], r["action"]), []).append(100 * float(r["success"]))
+def plot_action_spaces(values: Mapping[tuple[str, str], Sequence[float]], title: str,
+                       methods: Sequence[tuple[str, str]], actions: Sequence[str], out: str | Path | None = None):
+    """Bars of a task's success (%) per action space (groups) and method (bars, ``(name, label)`` pairs);
+    ``values``: ``(method, action)`` -> the success (%) of each finished run
+    (:func:`dexmots_rl.apps.table_writer.action_space_runs`); error bars: sample s.d. over seeds."""
     fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(actions), 3.6), constrained_layout=True)
     width = 0.8 / max(len(methods), 1)
     x = np.arange(len(actions))
