@@ -115,11 +115,6 @@ def test_running_obs_norm_stays_finite_on_features_that_do_not_move():
     assert bool((scale["observation"][:1001] < 1e-2).all())  # a still feature: eps or rounding, not NaN
 
 
-def test_sac_refuses_resume(tmp_path):  # its replay buffer is not in the checkpoint
-    with pytest.raises(ValueError, match="resume"):
-        train(_cfg("sac", tmp_path / "r", f"resume={tmp_path}"))
-
-
 def test_ppo_stops_after_and_resumes_in_its_own_directory(tmp_path):
     run = tmp_path / "run"
     assert train(_cfg("ppo", run, "stop_after=1")) == {}  # two iterations in the schedule: stopped after one

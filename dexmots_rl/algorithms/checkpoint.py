@@ -11,8 +11,9 @@ key                value
 ``iteration``      iterations completed
 ``modules``        ``{name: state_dict}`` (actor, critic, loss incl. target critic, normaliser, ahac)
 ``optimizers``     ``{name: state_dict}``
-``env_state``      the env's TensorDict where training stopped (plain dict of tensors)
-``rng``            torch and env-generator RNG states, for bit-identical resumes on CPU
+``env_state``      the env's TensorDict where training stopped (plain dict of tensors): the worlds mid-episode
+``rng``            torch and env-generator RNG states (:func:`rng_states`), for bit-identical resumes on CPU
+``replay_buffer``  SAC's transitions and write cursor (:func:`~.common.replay_buffer_state`)
 ``counters``       env steps, skipped updates, ...
 =================  ====================================================================
 
@@ -35,7 +36,8 @@ import torch
 from ..atomic import atomic_torch_save
 from ..integrity import checksum_problem, with_checksum
 
-__all__ = ["CheckpointError", "FORMAT_NAME", "FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "latest_checkpoint"]
+__all__ = ["CheckpointError", "FORMAT_NAME", "FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "latest_checkpoint",
+           "restore_rng_states", "rng_states"]
 
 FORMAT_NAME = "dexmots-checkpoint"
 FORMAT_VERSION = 2
@@ -81,3 +83,17 @@ def latest_checkpoint(run_dir: str | os.PathLike) -> Path:
     if not path.is_file():
         raise CheckpointError(f"{run_dir} has no checkpoint (expected {path})")
     return path
+
+
+def rng_states(env) -> dict[str, torch.Tensor]:
+    """The random streams a training run draws from: torch's (sampled actions, minibatch order, ...) and the
+    task env's generator (the worlds' resets: goals, frictions, starts); ``env`` the task env or a
+    ``TransformedEnv`` on it."""
+    return {"torch": torch.get_rng_state(), "env": getattr(env, "base_env", env).generator.get_state()}
+
+
+def restore_rng_states(env, states: dict[str, torch.Tensor]) -> None:
+    """Set the streams :func:`rng_states` saved (a checkpoint's ``rng``)."""
+    torch.set_rng_state(states["torch"])
+    if "env" in states:
+        getattr(env, "base_env", env).generator.set_state(states["env"])

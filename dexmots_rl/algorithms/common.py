@@ -22,6 +22,7 @@ import sys
 import warnings
 
 import torch
+from tensordict import TensorDict
 from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import ClipTransform, RewardSum
@@ -31,10 +32,11 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 from ..progress import progress_bar
 from ..envs import make_env
 from .budget import RunBudget, TrainingClock
+from .checkpoint import restore_rng_states, rng_states
 from .rundir import RunDirectory
 
-__all__ = ["CollectorLoop", "ObsNorm", "RunningObsNorm", "batch_metrics", "deployable_policy", "make_train_env", "mlp",
-           "policy_from_data", "sync_obs_norm", "tanh_gaussian_actor"]
+__all__ = ["CollectorLoop", "ObsNorm", "RunningObsNorm", "batch_metrics", "deployable_policy", "load_replay_buffer",
+           "make_train_env", "mlp", "policy_from_data", "replay_buffer_state", "sync_obs_norm", "tanh_gaussian_actor"]
 
 log = logging.getLogger(__name__)
 
@@ -156,6 +158,20 @@ def policy_from_data(data: dict, env, state_scale: bool = False, observation=Non
     return policy
 
 
+def replay_buffer_state(buffer) -> dict:
+    """A replay buffer's filled rows (in storage order, a plain dict of tensors) and its writer's cursor."""
+    filled = len(buffer)
+    rows = buffer.storage[:filled].exclude("index").to_dict() if filled else {}
+    return {"rows": rows, "filled": filled, "writer": dict(buffer.writer.state_dict())}
+
+
+def load_replay_buffer(buffer, state: dict) -> None:
+    """Refill an empty ``buffer`` (of the same capacity) from :func:`replay_buffer_state`."""
+    if state["filled"]:
+        buffer.extend(TensorDict.from_dict(state["rows"], batch_size=[state["filled"]]))
+    buffer.writer.load_state_dict(state["writer"])
+
+
 def batch_metrics(data, counters: dict) -> dict:
     """The ``metrics.jsonl`` row of a collected batch ``[worlds, time]``: the counters, the mean step reward,
     ``episode_success`` (the success flag at the last step of the episodes that ended in the batch; NaN when
@@ -187,12 +203,13 @@ class CollectorLoop:
     checks the budget, writes a checkpoint every ``checkpoint_every`` iterations, at the end and at
     ``stop_after``, runs the periodic evaluations (their time is not training time), and says whether to
     stop. :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
-    On resume (:attr:`.RunDirectory.start`), the counters continue the checkpoint's and :meth:`restore`
-    loads its modules and optimizers.
+    On resume (:attr:`.RunDirectory.start`), the counters continue the checkpoint's and :meth:`start`
+    loads the rest of its state (``replay_buffer``: SAC's, saved and restored too).
     """
 
-    def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int):
+    def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int, replay_buffer=None):
         self.run, self.cfg, self.policy, self.vecnorm, self.iterations = run, run.cfg, policy, vecnorm, iterations
+        self.replay_buffer, self.collector = replay_buffer, None
         self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "cpu_s": 0.0}
         if run.start is not None:
             self.counters.update(run.start["counters"])
@@ -202,10 +219,13 @@ class CollectorLoop:
                         desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
         self.clock = TrainingClock(self.counters)
 
-    def restore(self, modules: dict, optimizers: dict) -> None:
-        """On resume: the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
-        under) and of torch's random stream; nothing on a fresh run. The episodes start afresh (a
-        collector's env state is not saved)."""
+    def start(self, collector, modules: dict, optimizers: dict) -> None:
+        """Call once ``collector`` (None: nothing left to collect) is built: building it resets the worlds,
+        which draws from the RNG streams and updates the normaliser. A fresh run keeps all that; a resumed
+        one then takes the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
+        under), the worlds where training stopped (mid-episode: the collector's next step continues them),
+        the replay buffer and both RNG streams, so it goes on exactly as the uninterrupted run."""
+        self.collector = collector
         start = self.run.start
         if start is None:
             return
@@ -213,7 +233,24 @@ class CollectorLoop:
             module.load_state_dict(start["modules"][name])
         for name, optimizer in optimizers.items():
             optimizer.load_state_dict(start["optimizers"][name])
-        torch.set_rng_state(start["rng"]["torch"])
+        if self.replay_buffer is not None:
+            load_replay_buffer(self.replay_buffer, start["replay_buffer"])
+        if collector is None:
+            return
+        carrier = collector._carrier  # torchrl keeps the worlds' current TensorDict there between batches
+        carrier.update_(TensorDict.from_dict(start["env_state"], batch_size=carrier.batch_size, device=carrier.device))
+        collector.update_policy_weights_()
+        restore_rng_states(collector.env, start["rng"])
+
+    def _resume_state(self) -> dict:
+        """What :meth:`start` needs besides modules and optimizers, for the checkpoint."""
+        state = {}
+        if self.collector is not None:
+            state["env_state"] = self.collector._carrier.detach().to_dict()
+            state["rng"] = rng_states(self.collector.env)
+        if self.replay_buffer is not None:
+            state["replay_buffer"] = replay_buffer_state(self.replay_buffer)
+        return state
 
     def frames_left(self, frames_per_batch: int) -> int:
         """The frames the collector still has to collect: up to ``stop_after`` or the schedule's end."""
@@ -240,7 +277,7 @@ class CollectorLoop:
         evaluate_now = self.cfg.eval.every and counters["iteration"] % self.cfg.eval.every == 0 and not self.ended
         if stop or counters["iteration"] % self.cfg.checkpoint_every == 0 or evaluate_now:
             sync_obs_norm(self.policy, self.vecnorm)
-            self.run.checkpoint(counters, modules, optimizers, rng={"torch": torch.get_rng_state()})
+            self.run.checkpoint(counters, modules, optimizers, **self._resume_state())
             if evaluate_now:
                 with self.clock.paused():  # evaluation is not training time (the budget's clock)
                     self.run.evaluate(self.policy, counters, final=False)

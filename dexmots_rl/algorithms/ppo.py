@@ -13,8 +13,8 @@ the current critic, then Adam steps on shuffled minibatches of the clipped PPO o
 ``dexmots-eval`` reloads, periodic evaluations, budget; at the end ``metrics.json`` with the final
 deterministic evaluation), in the run directory every method writes (:class:`~.rundir.RunDirectory`).
 
-``resume=<run_dir>`` continues a run from its checkpoint (networks, normaliser, optimiser, counters; the
-episodes start afresh). A method that is PPO with another observation, reward, start or initialisation
+``resume=<run_dir>`` continues a run from its checkpoint (networks, normaliser, optimiser, counters, the worlds
+mid-episode, RNG streams) exactly as the uninterrupted run goes on. A method that is PPO with another observation, reward, start or initialisation
 (PGDM, :mod:`.pgdm`) passes a :class:`PPOVariant` to :func:`build` / :func:`train` instead of copying the loop.
 """
 
@@ -101,13 +101,13 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
     loop = CollectorLoop(run, policy, vecnorm, iterations)
     modules, optimizers = {"policy": policy, "critic": critic, "vecnorm": vecnorm}, {"optimizer": optimizer}
-    loop.restore(modules, optimizers)  # a resumed run continues from its checkpoint
     counters = loop.counters
     # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
     frames = loop.frames_left(frames_per_batch)
     collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
                           exploration_type=ExplorationType.RANDOM,
                           auto_register_policy_transforms=False) if frames else None
+    loop.start(collector, modules, optimizers)  # a resumed run continues from its checkpoint
     for data in collector or ():
         # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}

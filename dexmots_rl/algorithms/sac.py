@@ -12,7 +12,8 @@ twin Q and temperature together) with a polyak update of the target Q after each
 once the random frames are in, so the stored observations and the ones the networks see later agree.
 The loop ends as every baseline's (:class:`~.common.CollectorLoop`: ``metrics.jsonl``, ``checkpoints/last.pt``
 for ``dexmots-eval``, periodic evaluations, budget, ``metrics.json``) in the run directory every method
-writes (:class:`~.rundir.RunDirectory`).
+writes (:class:`~.rundir.RunDirectory`). ``resume=<run_dir>`` continues a run exactly as it would have gone on:
+the checkpoint holds the replay buffer's filled rows too (so it grows with them, up to ``buffer_size``).
 """
 
 from __future__ import annotations
@@ -71,9 +72,10 @@ def store_transitions(buffer: TensorDictReplayBuffer, data) -> None:
 
 
 def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
-    """Train a SAC run; returns the final metrics dict (also written to ``metrics.json``). SAC does not
-    resume (its replay buffer is not saved; ``resume=`` is refused, ``overrides`` are not used)."""
-    with RunDirectory(cfg, overrides, resumes=False) as run:
+    """Train (or resume) a SAC run; returns the final metrics dict (also written to ``metrics.json``), or
+    ``{}`` when stopped early by ``stop_after``. ``overrides``: the command line's, which a resume compares
+    with its checkpoint."""
+    with RunDirectory(cfg, overrides, resumes=True) as run:
         return _train(run)
 
 
@@ -83,15 +85,22 @@ def _train(run: RunDirectory) -> dict:
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    loop = CollectorLoop(run, policy, vecnorm, iterations)  # a fresh run: SAC does not resume
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch,
-                          total_frames=loop.frames_left(frames_per_batch), init_random_frames=int(a.init_random_frames),
-                          device=cfg.device, exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False)
-    updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
+    loop = CollectorLoop(run, policy, vecnorm, iterations, replay_buffer=buffer)
+    modules, optimizers = {"policy": policy, "loss": loss, "vecnorm": vecnorm}, {"optimizer": optimizer}
     counters = loop.counters
-    counters["updates"] = 0
-    for data in collector:
+    counters.setdefault("updates", 0)
+    frames = loop.frames_left(frames_per_batch)
+    # a resumed run has had some of its random frames already (the collector counts its own frames from 0)
+    random_frames = max(0, int(a.init_random_frames) - counters["env_steps"])
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames,
+                          init_random_frames=random_frames, device=cfg.device,
+                          exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False) if frames else None
+    loop.start(collector, modules, optimizers)  # a resumed run continues from its checkpoint
+    if 0 < counters["env_steps"] >= a.init_random_frames:  # resumed past the random frames: frozen, as it was
+        vecnorm.freeze()                                      # (VecNorm's state_dict does not hold the flag)
+    updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
+    for data in collector or ():
         store_transitions(buffer, data)
         counters["iteration"] += 1
         counters["env_steps"] += data.numel()
@@ -115,8 +124,7 @@ def _train(run: RunDirectory) -> dict:
         n = updates_per_batch if learning else 1
         stats = {**{k: v / n for k, v in stats.items()}, "alpha": float(loss.log_alpha.detach().exp()),
                  "updates": counters["updates"]}
-        if loop.end_iteration(data, stats, {"policy": policy, "loss": loss, "vecnorm": vecnorm},
-                              {"optimizer": optimizer}):
+        if loop.end_iteration(data, stats, modules, optimizers):
             break
     return loop.finish(collector)
 

@@ -37,6 +37,7 @@ from ..progress import progress_bar
 from ..envs import make_env
 from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
 from .best_policy import BestPolicy
+from .checkpoint import restore_rng_states, rng_states
 from .budget import RunBudget, TrainingClock
 from .distributed import Distributed
 from .networks import make_networks
@@ -138,8 +139,7 @@ def _train(run: RunDirectory, dist, stop) -> dict:
         if best is not None and start.get("best") is not None:
             best.load_state_dict(start["best"])
         td = TensorDict.from_dict(start["env_state"], batch_size=td.batch_size)
-        torch.set_rng_state(start["rng"]["torch"])
-        env.base_env.generator.set_state(start["rng"]["env"])
+        restore_rng_states(env, start["rng"])
     iterations = cfg.algo.iterations
     bar = progress_bar(total=iterations, initial=counters["iteration"], desc=f"{cfg.algo.name} {cfg.task.name}",
                        disable=not (cfg.progress and dist.is_main), file=sys.stderr)
@@ -303,7 +303,7 @@ def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, 
 def _save(run: RunDirectory, counters, modules, optimizers, td, env, best=None) -> None:
     """A checkpoint that resumes bit-identically on CPU: the env's state and both RNG streams too."""
     run.checkpoint(counters, modules, optimizers, env_state=td.detach().to_dict(),
-                   rng={"torch": torch.get_rng_state(), "env": env.base_env.generator.get_state()},
+                   rng=rng_states(env),
                    best=best.state_dict() if best is not None else None)
 
 
