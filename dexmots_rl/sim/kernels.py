@@ -22,7 +22,6 @@ import types
 
 import warp as wp
 
-from .base_kernels import build_base
 from .chain_kernels import build_chain
 from .contact_kernels import build_contact
 from .palm_kernels import build_palm
@@ -48,15 +47,14 @@ P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
 
 @functools.lru_cache(maxsize=None)
 def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes: int, object_kind: int, shape: int,
-                  hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0, base_boxes: int = 0,
+                  hinges_only: bool = False, palm_boxes: int = 0, palm_points: int = 0,
                   object_limited: bool = False, box_object: bool = False):
     """Return a namespace with the struct type and kernels specialised for one scene structure.
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
     (fewer instructions forward and, above all, in the generated adjoint). ``palm_boxes``,
     ``palm_points``: palm collision boxes and object surface samples (palm_kernels.py; free objects only);
-    with none, the palm's fields and code are left out entirely. ``base_boxes``: static
-    collision boxes of the object's base (base_kernels.py); 0 compiles the base contact out.
+    with none, the palm's fields and code are left out entirely.
     ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out).
     ``box_object``: the convex object's faces are the six of an axis-aligned box (object frame), so the
     largest face distance is ``max(|p - c| - h)`` (exact; three planes' work instead of six)."""
@@ -68,7 +66,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     if PALM and NS > 16:
         module_options["max_unroll"] = NS  # the sample loop must unroll for an exact adjoint
     HINGES_ONLY = bool(hinges_only)
-    NBASE = int(base_boxes)
     OBJ_LIMITED = bool(object_limited) and OBJ_HINGE
     BOX = bool(box_object)
     dtype = float_type
@@ -127,10 +124,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         sdf_origin: vec3
         sdf_cell: dtype
         shape_size: vec3
-        if NBASE > 0:  # the operable object's static base (SceneModel.base_box_*): only in scenes that have one
-            box_pos: wp.array(dtype=vec3)  # [NB] box centres, world frame
-            box_rot: wp.array(dtype=mat33)  # [NB] box-to-world rotations
-            box_half: wp.array(dtype=vec3)  # [NB] half sizes
         gravity: vec3
         # contact: stiffness, damping, sharpness, friction, slip velocity, surface smoothing
         ke: dtype
@@ -155,8 +148,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         columns: finger, or sample sphere). Arrays with no rows when the step is not taped."""
 
         finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
-        contact: wp.array2d(dtype=vecC)  # point_contact / base_contact results (see their docstrings)
-        # (contact and law: with an object base, base_kernels' slots follow the sample spheres')
+        contact: wp.array2d(dtype=vecC)  # point_contact results (see its docstring)
         sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
         sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
         law: wp.array2d(dtype=mat43)  # contact_force: n, cp, v_rel and (softplus, its slope, slip norm)
@@ -181,14 +173,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus, smooth_box=contact.smooth_box,
             box_face_max=contact.box_face_max))
     palm_wrench = palm.palm_wrench if PALM else None
-    base = None
-    if NBASE > 0:  # built only when used: warp resolves every function a kernel names, even in a static branch
-        base = build_base(types.SimpleNamespace(
-            dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, Model=Model,
-            Saved=Saved, J=J, P=P, NB=NBASE, NPTS=F * J * P, contact_force=contact.contact_force,
-            joint_forces=joint_forces, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, smooth_box=contact.smooth_box))
-    link_base_contacts = base.link_base_contacts if NBASE > 0 else None
-    link_near_base = base.link_near_base if NBASE > 0 else None
 
     @wp.func
     def limit_ramp(x: dtype):
@@ -265,7 +249,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         local of a frame on entry. ``saved*`` (rows: ``ro``; empty when untaped): results kept for the
         reverse pass."""
         contacts = vecC()  # the object contacts' results summed: force, torque about xo, normal force, joint forces
-        cforce = dtype(0.0)  # normal forces of the base contacts
         R = fixed_mat33(m.base_rot, f)
         x = fixed_vec3(m.base_pos, f)
         om = vec3()  # angular velocity of the parent link
@@ -275,7 +258,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         O = matJ3()  # joint origins, one row per link
         A = matJ3()  # joint axes (world)
         MB = matJJ1()  # the finger's [M | bias], summed over its links
-        gen = vecJ()  # generalized forces of the base contacts
         # the finger's joint state read once: every array read has its own atomic adjoint in the reverse pass
         qf = vecJ()
         qdf = vecJ()
@@ -329,17 +311,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                             saved.contact[ro, pi] = res
                         # summed as whole vectors: a per-component sum unrolls J adjoint updates per sphere
                         contacts = contacts + res
-            # contact with the object's static base: joint forces on the finger, the normal force counts
-            # in the summed contact force (no wrench: the base does not move)
-            if wp.static(NBASE > 0):
-                if link_near_base(m, x, i) != 0:
-                    gen_b, fn_b = link_base_contacts(m, x, R, i, f * J, A, O, qdf, saved, ro)
-                    gen = gen + gen_b
-                    cforce = cforce + fn_b
         f_obj = -vec3(contacts[0], contacts[1], contacts[2])
         t_obj = -vec3(contacts[3], contacts[4], contacts[5])
-        cforce = cforce + contacts[6]
-        gen = gen + joint_forces(contacts)
+        cforce = contacts[6]
+        gen = joint_forces(contacts)
         # implicit joint-space solve: (M + dt (D + Kd) + dt^2 Kp) qdd = rhs
         M = mass_block(MB)
         bias = bias_column(MB)
@@ -545,5 +520,4 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
     ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
     ns.palm = palm  # palm-contact functions (for probe kernels), None without palm contact
-    ns.base = base  # base-contact functions (box_sdf, base_contact: for probe kernels), None without a base
     return ns

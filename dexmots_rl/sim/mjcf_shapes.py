@@ -15,7 +15,6 @@ MAX_OBJECT_POINTS = 32  # object surface samples for palm contact
 CYLINDER_RIM_POINTS = 8  # samples per cap rim of a cylinder object (palm contact)
 MAX_PLANES = 32  # convex objects with more faces than this (or non-convex meshes) use a signed-distance grid
 SDF_RESOLUTION = 40  # grid points along the longest padded axis
-MAX_BASE_BOXES = 4  # static collision boxes of an ``object_base`` body (each costs a test per finger sphere)
 
 
 class AssetError(ValueError):
@@ -168,24 +167,3 @@ def _object_points(m, g: int) -> tuple[np.ndarray, np.ndarray]:
     else:
         raise AssetError(f"object geom type {gtype} has no palm-contact samples")
     return local @ rot.T + pos, np.zeros(len(local))
-def _base_boxes(m, d, obj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World-frame centres [B, 3], rotations [B, 3, 3] and half sizes [B, 3] of the box geoms of body
-    ``object_base`` (the parent of ``object``); empty arrays when the object's parent is not named so."""
-    import mujoco
-
-    base = int(m.body_parentid[obj])
-    if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, base) != "object_base":
-        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object_base") >= 0:
-            raise AssetError("body 'object_base' must be the parent of body 'object'")
-        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3))
-    if m.body_parentid[base] != 0 or m.body_jntnum[base] != 0:
-        raise AssetError("body 'object_base' must be a child of the worldbody without joints (it is static)")
-    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == base]
-    if not 1 <= len(geoms) <= MAX_BASE_BOXES:
-        raise AssetError(f"body 'object_base' needs 1 to {MAX_BASE_BOXES} geoms, found {len(geoms)}")
-    for g in geoms:
-        if int(m.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_BOX):
-            raise AssetError(f"geom {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)!r} on 'object_base': "
-                             "only boxes are supported on the object's base")
-    return (np.stack([d.geom_xpos[g].copy() for g in geoms]), np.stack([d.geom_xmat[g].reshape(3, 3).copy() for g in geoms]),
-            np.stack([m.geom_size[g, :3].copy() for g in geoms]))

@@ -10,11 +10,7 @@ module only walks the compiled ``MjModel``. Naming conventions in the MJCF:
 * sites named ``*tip*`` mark fingertips (one per finger, on its last link);
 * box geoms on body ``hand`` that collide with the object's geom in MuJoCo terms (``contype``/``conaffinity``)
   are the palm's collision boxes (at most ``mjcf_shapes.MAX_PALM_BOXES``); a free object rests on and pushes against
-  them. Visual-only palm geoms (``contype="0" conaffinity="0"``) are ignored;
-* optionally, body ``object_base`` (a child of the worldbody, no joint) is the static part of an operable
-  object (a stapler's base, the held blade of scissors): the parent of ``object``, whose hinge then turns the
-  moving part against it. Its box geoms (at most ``mjcf_shapes.MAX_BASE_BOXES``) are static collision shapes for the
-  finger spheres.
+  them. Visual-only palm geoms (``contype="0" conaffinity="0"``) are ignored.
 """
 
 from __future__ import annotations
@@ -26,7 +22,6 @@ import numpy as np
 
 from .mjcf_shapes import (
     AssetError,
-    _base_boxes,
     _body_inertia,
     _link_points,
     _object_points,
@@ -149,19 +144,9 @@ class SceneModel:
     @property
     def num_palm_boxes(self) -> int:
         return len(self.palm_box_pos)
-    # static collision shapes of the operable object's base (body ``object_base``): boxes, world frame,
-    # metres. Empty ([0, ...]) when the scene has no base.
-    base_box_pos: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] box centres
-    base_box_rot: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))  # [B, 3, 3] box-to-world
-    base_box_half: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))  # [B, 3] half sizes
     # the hinge object's range (rad; MJCF joint range when limited): a stiff implicit limit spring holds it
     object_limited: bool = False
     object_range: tuple[float, float] = (-1e9, 1e9)
-
-    @property
-    def num_base_boxes(self) -> int:
-        """Static collision boxes of the object's base (0: no ``object_base`` body)."""
-        return int(len(self.base_box_half))
 
     @property
     def num_hand_dofs(self) -> int:
@@ -235,7 +220,6 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
     base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]
     shape, planes, size, bound, (sdf, sdf_origin, sdf_cell) = _object_shape(m, obj)
     omass, ocom, oinertia = _body_inertia(m, obj)
-    box_pos, box_rot, box_half = _base_boxes(m, d, obj)
     odof = int(m.jnt_dofadr[oj])
     ogeom = [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]
     palm = _palm_boxes(m, d, hand, ogeom) if kind == OBJECT_FREE else (np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
@@ -270,9 +254,6 @@ def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneM
         palm_box_half=palm[2],
         object_point_pos=samples[0],
         object_point_radius=samples[1],
-        base_box_pos=box_pos,
-        base_box_rot=box_rot,
-        base_box_half=box_half,
         object_limited=bool(m.jnt_limited[oj]) and kind == OBJECT_HINGE,
         object_range=(float(m.jnt_range[oj, 0]), float(m.jnt_range[oj, 1])) if m.jnt_limited[oj] else (-1e9, 1e9),
     )

@@ -55,7 +55,7 @@ class StepOutput(tuple):
     wrench: [N, 6] mean over substeps of the hand's net contact force (N) and torque (N m) on the object
     (world frame, torque about the object origin): the fingers' and, where the palm collides with a free
     object, the palm's; contact_force: [N] mean over substeps of the fingers' summed normal contact force
-    magnitudes (N; finger-object contacts and, in scenes with an ``object_base``, finger-base contacts);
+    magnitudes (N);
     body_pose: [N, B, 7] pos + wxyz quat of every hand link then the object; fingertips: [N, F, 3].
     """
 
@@ -179,7 +179,6 @@ class Simulator:
             bool((np.asarray(scene.joint_type) == HINGE).all()),
             *((scene.num_palm_boxes, len(scene.object_point_pos)) if scene.num_palm_boxes and not scene.articulated
               else ()),
-            base_boxes=scene.num_base_boxes,
             object_limited=scene.object_limited,
             box_object=self.object_box is not None,
         )
@@ -231,9 +230,6 @@ class Simulator:
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
-        if s.num_base_boxes:  # the object's static base (base_kernels.py)
-            m.box_pos, m.box_rot = arr(s.base_box_pos, k.vec3), arr(s.base_box_rot, k.mat33)
-            m.box_half = arr(s.base_box_half, k.vec3)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)

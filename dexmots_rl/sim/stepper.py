@@ -159,14 +159,13 @@ class Trajectory:
         # row of the substep. Left empty for gradient-free steps.
         k, scene = sim.kernels, sim.scene
         points = scene.num_hand_dofs * scene.points_per_link
-        slots = points * (1 + scene.num_base_boxes)  # object contacts, then base contacts (base_kernels.py)
         saved_rows = rows if save else 0
         self.saved = k.Saved()
         self.saved.finger = wp.empty((saved_rows, scene.num_fingers), dtype=k.vec7, device=sim.device)
-        self.saved.contact = wp.empty((saved_rows, slots), dtype=k.vecC, device=sim.device)
+        self.saved.contact = wp.empty((saved_rows, points), dtype=k.vecC, device=sim.device)
         self.saved.sdf = wp.empty((saved_rows, points), dtype=k.vec4, device=sim.device)
         self.saved.sdf_jac = wp.empty((saved_rows, points), dtype=k.mat43, device=sim.device)
-        self.saved.law = wp.empty((saved_rows, slots), dtype=k.mat43, device=sim.device)
+        self.saved.law = wp.empty((saved_rows, points), dtype=k.mat43, device=sim.device)
         self.saved.inertia = wp.empty((saved_rows, scene.num_hand_dofs), dtype=k.matJJ1, device=sim.device)
         # state trajectories and the per-step inputs: tau, q_target, kp, kd, params, object_wrench
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
