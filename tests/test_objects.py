@@ -210,6 +210,27 @@ def test_generator_rejects_a_bad_parameter_naming_it(object_class):
         generate(dataclasses.replace(params(), **{field.name: float("nan")}))
 
 
+@pytest.mark.parametrize("object_class", CLASSES)
+def test_generator_rejects_bad_seeds_and_parameters_naming_the_field(object_class):
+    """A bad seed, another class's parameters or an unknown parameter name: one ObjectError naming the field."""
+    generate, params = GENERATORS[object_class], PARAMS[object_class]
+    other = next(cls for name, cls in sorted(PARAMS.items()) if name != object_class)
+    for seed in (-1, 1.5, "3", True):
+        with pytest.raises(ObjectError, match=rf"^{object_class}: rng: must be a seed"):
+            generate(rng=seed)
+    with pytest.raises(ObjectError, match=rf"^{object_class}: params must be a {params.__name__}.*{other.__name__}"):
+        generate(params=other())
+    with pytest.raises(ObjectError, match=rf"^{object_class}: params must be a {params.__name__}.*dict"):
+        generate(params={})
+    with pytest.raises(ObjectError, match=rf"^{params.__name__}: no parameter 'bogus'; its parameters: \["):
+        params(bogus=1)
+    with pytest.raises(ObjectError, match=rf"^{params.__name__}: {len(dataclasses.fields(params)) + 1} values"):
+        params(*range(len(dataclasses.fields(params)) + 1))
+    with pytest.raises(ObjectError, match=rf"^{params.__name__}.sample: rng: must be a seed"):
+        params().sample(-1)
+    assert generate(rng=np.int64(2)).params == generate(rng=2).params
+
+
 def test_count_parameters_must_be_integers():
     with pytest.raises(ObjectError, match="ValveParams.spokes.*integer"):
         GENERATORS["valve"](PARAMS["valve"](spokes=3.5))

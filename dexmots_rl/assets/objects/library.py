@@ -110,7 +110,7 @@ def sample_variants(name: str, k: int, rng=None, size_scale: float = 0.1) -> lis
                           f"classes: {sorted(PARAMS)}")
     if not isinstance(k, int) or k < 1:
         raise ObjectError(f"sample_variants: k must be a positive integer, got {k!r}")
-    rng = make_rng(rng)
+    rng = make_rng(rng, "sample_variants: rng")
     base = dataclasses.replace(PARAMS[object_class](), **overrides)
     params = [base] + [base.sample_sizes(rng, size_scale) for _ in range(k - 1)]
     generator = GENERATORS[object_class]

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import (Params, box_geom, capsule_geom, cylinder_geom, grasp_region, make_rng, param, with_mass)
+from .common import (Params, box_geom, capsule_geom, cylinder_geom, grasp_region, param, with_mass)
 
 __all__ = ["SprayBottleParams", "spray_bottle", "PumpDispenserParams", "pump_dispenser", "JarParams", "jar"]
 
@@ -68,10 +68,7 @@ def spray_bottle(params: SprayBottleParams | None = None, rng=None, name: str = 
 
     Trigger: 0.15 N m/rad from a 0.2 rad preload gives 0.03 N m released and 0.09 N m fully pulled
     (about 2.5 N at a fingertip 3.5 cm below the hinge). ``rng``: draw the parameters around ``params``."""
-    p = params or SprayBottleParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = SprayBottleParams.for_generator(params, rng, name)
     collar_r, collar_h, neck_h = p.neck_radius + 0.005, 0.012, 0.02
     shoulder = 0.8 * (p.body_radius - p.neck_radius)
     z_head = p.body_height + shoulder + neck_h + collar_h  # bottom of the head
@@ -146,10 +143,7 @@ class PumpDispenserParams(Params):
 def pump_dispenser(params: PumpDispenserParams | None = None, rng=None, name: str = "pump_dispenser") -> ObjectAsset:
     """A soap pump: the bottle is the free base; the head with its spout slides down (q > 0, axis -z)
     on a spring. 150 N/m from an 8 mm preload: 1.2 N released, 3 N at the bottom of a 12 mm stroke."""
-    p = params or PumpDispenserParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = PumpDispenserParams.for_generator(params, rng, name)
     collar_r, collar_h, neck_h = p.neck_radius + 0.006, 0.014, 0.012
     shoulder = 0.8 * (p.body_radius - p.neck_radius)
     z_collar = p.body_height + shoulder + neck_h + collar_h  # top of the collar
@@ -211,10 +205,7 @@ def jar(params: JarParams | None = None, rng=None, name: str = "jar") -> ObjectA
     """A jar: the glass is the free base; the ribbed lid turns about the jar's axis (q > 0 unscrews it)
     against thread friction (0.04 N m: a firm twist, well within one finger's 0.35 N m). The lid does not
     rise as it turns (the thread's pitch is not modelled)."""
-    p = params or JarParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = JarParams.for_generator(params, rng, name)
     r, top = p.body_radius, p.body_height
     mouth = 0.9 * r
     fillet = 0.12 * r

@@ -34,14 +34,47 @@ def param(default: float, low: float, high: float, unit: str, doc: str, kind: Ki
                                                         "kind": kind})
 
 
-def make_rng(rng) -> np.random.Generator:
-    """A numpy Generator from a seed (int), a Generator, or None (unseeded)."""
-    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+def make_rng(rng, where: str = "rng") -> np.random.Generator:
+    """A numpy Generator from a seed (an integer >= 0), a Generator, or None (unseeded); anything else raises
+    :class:`ObjectError` naming ``where`` (the argument)."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is not None and (isinstance(rng, bool) or not isinstance(rng, (int, np.integer)) or rng < 0):
+        raise ObjectError(f"{where}: must be a seed (an integer >= 0), a numpy Generator or None, got {rng!r}")
+    return np.random.default_rng(rng)
 
 
 @dataclasses.dataclass(frozen=True)
 class Params:
-    """Base of every generator's parameters (subclasses declare their fields with :func:`param`)."""
+    """Base of every generator's parameters (subclasses declare their fields with :func:`param`).
+
+    Built by keyword (``SprayBottleParams(body_radius=0.035)``): a name that is not a field raises
+    :class:`ObjectError` naming it and the fields."""
+
+    def __new__(cls, *args, **kwargs):
+        # before the dataclass's __init__, whose TypeError names no field a user can look up
+        fields = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(kwargs) - set(fields))
+        if unknown:
+            raise ObjectError(f"{cls.__name__}: no parameter {unknown[0]!r}; its parameters: {fields}")
+        if len(args) > len(fields):
+            raise ObjectError(f"{cls.__name__}: {len(args)} values given for {len(fields)} parameters {fields}")
+        return super().__new__(cls)
+
+    @classmethod
+    def for_generator(cls, params, rng, generator: str) -> "Params":
+        """What generator ``generator`` builds from: ``params`` (an instance of this class, or None for the
+        defaults), drawn around when ``rng`` is given (see :meth:`sample`), validated. A wrong ``params`` or
+        ``rng`` raises :class:`ObjectError` naming the argument."""
+        if params is None:
+            params = cls()
+        elif not isinstance(params, cls):
+            raise ObjectError(f"{generator}: params must be a {cls.__name__} (or None), got "
+                              f"{type(params).__name__}")
+        if rng is not None:
+            params = params.sample(make_rng(rng, f"{generator}: rng"))
+        params.validate()
+        return params
 
     @classmethod
     def ranges(cls) -> dict[str, tuple[float, float, str, str]]:
@@ -69,7 +102,7 @@ class Params:
         """A variant drawn around these values (see the module docstring); ``rng``: a seed or a Generator."""
         if not 0.0 <= scale <= 0.5:
             raise ObjectError(f"{type(self).__name__}.sample: scale must be in [0, 0.5], got {scale!r}")
-        rng = make_rng(rng)
+        rng = make_rng(rng, f"{type(self).__name__}.sample: rng")
         values = {}
         for f in dataclasses.fields(self):
             low, high = f.metadata["range"]
@@ -87,7 +120,7 @@ class Params:
         topology whose physical parameters are randomised elsewhere, by name)."""
         if not 0.0 <= scale <= 0.5:
             raise ObjectError(f"{type(self).__name__}.sample_sizes: scale must be in [0, 0.5], got {scale!r}")
-        rng = make_rng(rng)
+        rng = make_rng(rng, f"{type(self).__name__}.sample_sizes: rng")
         values = {}
         for f in dataclasses.fields(self):
             if f.metadata["kind"] == "size":

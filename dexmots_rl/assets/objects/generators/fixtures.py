@@ -14,7 +14,7 @@ import numpy as np
 
 from ..description import Joint, ObjectAsset, Part
 from .. import shapes
-from .common import Params, box_geom, capsule_geom, cylinder_geom, grasp_region, make_rng, param, with_mass
+from .common import Params, box_geom, capsule_geom, cylinder_geom, grasp_region, param, with_mass
 
 __all__ = ["ValveParams", "valve", "DrawerParams", "drawer", "DoorHandleParams", "door_handle"]
 
@@ -42,10 +42,7 @@ def valve(params: ValveParams | None = None, rng=None, name: str = "valve") -> O
     """A valve in the style of ROBEL's D'Claw valve: a fixed base plate and post, a hub with 3-5 capsule
     spokes turning about z (q > 0: counter-clockwise seen from above) against friction 0.02 N m. ROBEL's
     damping of 2 N m s/rad would take a 0.35 N m finger seconds per quarter turn: 0.02 here."""
-    p = params or ValveParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = ValveParams.for_generator(params, rng, name)
     plate_h, post_r = 0.01, 0.014
     plate = shapes.rounded_box((0.09, 0.09, plate_h), 0.003, (0, 0, plate_h / 2))
     post = shapes.cylinder(post_r, (0, 0, plate_h - 0.001), (0, 0, p.post_height + 0.001))
@@ -101,10 +98,7 @@ def drawer(params: DrawerParams | None = None, rng=None, name: str = "drawer") -
     """A drawer in a small cabinet: the cabinet is fixed; the drawer with a bar handle slides out along +x
     (q > 0) against runner friction (0.5 N, a tenth of a fingertip's push). The travel is scaled down to what
     a hand on a fixed mount reaches (real drawers: 0.1-0.4 m)."""
-    p = params or DrawerParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = DrawerParams.for_generator(params, rng, name)
     W, D, H, t = p.width, p.depth, p.height, p.wall
     shell = shapes.box((D, W, H), (0, 0, H / 2))
     cavity = shapes.box((D, W - 2 * t, H - 2 * t), (t, 0, H / 2))  # open at the front (+x)
@@ -176,10 +170,7 @@ def door_handle(params: DoorHandleParams | None = None, rng=None, name: str = "d
     rosette and runs along +y; q > 0 turns it down about the spindle (axis -x) against a return spring.
     0.15 N m/rad from a 0.5 rad preload holds the level lever against its weight (0.075 N m against about
     0.04 N m) and needs about 0.15 N m net fully down: under 2 N at the lever's end."""
-    p = params or DoorHandleParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = DoorHandleParams.for_generator(params, rng, name)
     door_t, rosette_r, rosette_t = 0.025, 0.026, 0.01
     door = shapes.rounded_box((door_t, p.door_width, p.door_height), 0.002, (-door_t / 2, 0, p.door_height / 2))
     rosette = shapes.cylinder(rosette_r, (-0.001, 0, p.handle_height), (rosette_t, 0, p.handle_height),

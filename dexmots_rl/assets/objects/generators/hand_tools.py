@@ -13,7 +13,7 @@ from ..description import Joint, ObjectAsset, Part
 from .. import shapes
 import numpy as np
 
-from .common import (Params, axis_angle_quat, box_geom, capsule_geom, grasp_region, make_rng, mesh_geom, param,
+from .common import (Params, axis_angle_quat, box_geom, capsule_geom, grasp_region, mesh_geom, param,
                      with_mass)
 
 __all__ = ["ScissorsParams", "scissors", "StaplerParams", "stapler", "PliersParams", "pliers"]
@@ -76,10 +76,7 @@ def scissors(params: ScissorsParams | None = None, rng=None, name: str = "scisso
     """Scissors lying flat: one half (blade, shank, ring) is the free base; the other lies on it and turns
     about the pivot (axis z): q > 0 opens the blades and the rings. Plain scissors have no spring, only
     pivot friction (0.01 N m: an opening stays); the rings are non-convex, so they collide as meshes."""
-    p = params or ScissorsParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = ScissorsParams.for_generator(params, rng, name)
     meshes: dict = {}
     base_geoms = _scissor_half(p, +1.0, 0.0, HANDLE_ORANGE, "a", meshes)
     moving_geoms = _scissor_half(p, -1.0, p.thickness, HANDLE_BLUE, "b", meshes)
@@ -125,10 +122,7 @@ def stapler(params: StaplerParams | None = None, rng=None, name: str = "stapler"
 
     Spring: 0.4 N m/rad from a 0.35 rad preload holds the arm (0.14 N m against about 0.08 N m of its
     weight) and needs about 0.18 N m net at full press: under 2 N at a fingertip near the front."""
-    p = params or StaplerParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = StaplerParams.for_generator(params, rng, name)
     half = p.length / 2
     plate_h, block_l = 0.012, 0.03
     plate = shapes.rounded_box((p.length, p.width, plate_h), 0.004, (0, 0, plate_h / 2))
@@ -251,10 +245,7 @@ def pliers(params: PliersParams | None = None, rng=None, name: str = "pliers") -
     other turns about the pivot (axis -z) and q > 0 squeezes the handles together, closing the jaws. The
     range stops the handles at 90 % of the way to touching. Spring 0.1 N m/rad from a 0.2 rad preload: about
     0.06 N m fully squeezed, under 1 N at the grips."""
-    p = params or PliersParams()
-    if rng is not None:
-        p = p.sample(make_rng(rng))
-    p.validate()
+    p = PliersParams.for_generator(params, rng, name)
     meshes: dict = {}
     squeeze = 0.9 * 2.0 * math.atan2(p.handle_spread, p.handle_length)
     base_geoms = _pliers_half(p, +1.0, 0.0, "half_a", meshes)
