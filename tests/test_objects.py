@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from dexmots_rl.assets.objects import (ObjectError, list_objects, load_object, object_scene_xml)
+from dexmots_rl.assets.objects import (SCENE_PREFIX, ObjectError, list_objects, load_object, object_scene_xml)
 from dexmots_rl.assets.objects.generators import GENERATORS, PARAMS
 from dexmots_rl.assets.objects.scene import bounding_box, part_transforms
 
@@ -127,7 +127,7 @@ def check_operable(a, tmp_path) -> None:
     model = compile_scene(fixed, tmp_path, pos=(0.0, 0.0, 0.05))
     for joint in fixed.joints:
         data = mujoco.MjData(model)
-        j = model.joint(joint.name)
+        j = model.joint(SCENE_PREFIX + joint.name)
         qpos, dof = j.qposadr[0], j.dofadr[0]
         lo, hi = joint.range
         span, where = hi - lo, f"{a.name}.{joint.name}"
@@ -166,7 +166,7 @@ def test_part_frames_agree_with_mujoco(object_class, tmp_path):
     q = {}
     for joint in a.joints:
         q[joint.name] = joint.range[0] + 0.7 * (joint.range[1] - joint.range[0])
-        data.qpos[model.joint(joint.name).qposadr[0]] = q[joint.name]
+        data.qpos[model.joint(SCENE_PREFIX + joint.name).qposadr[0]] = q[joint.name]
     if a.base == "free":
         data.qpos[:7] = (0.1, -0.05, 0.0, 1.0, 0.0, 0.0, 0.0)
     mujoco.mj_kinematics(model, data)

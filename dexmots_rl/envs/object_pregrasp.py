@@ -58,7 +58,9 @@ def operate_pregrasp_path(object_name: str):
 
 
 def _body_name(asset, part: str) -> str:
-    return "object" if part == asset.parts[0].name else f"object/{part}"
+    from ..assets.objects import SCENE_PREFIX
+
+    return "object" if part == asset.parts[0].name else f"{SCENE_PREFIX}{part}"
 
 
 def _object_bodies(model) -> set[int]:

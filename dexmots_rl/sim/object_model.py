@@ -142,8 +142,11 @@ def object_tree(m, d) -> ObjectTree:
     ``mj_forward``; raises :class:`AssetError` naming the body or joint that does not fit."""
     import mujoco
 
+    from ..assets.objects.description import scene_joint_name
+
     def name(kind, i):
-        return mujoco.mj_id2name(m, kind, i) or f"#{i}"
+        named = mujoco.mj_id2name(m, kind, i) or f"#{i}"
+        return scene_joint_name(named) if kind == mujoco.mjtObj.mjOBJ_JOINT else named
 
     root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
     if root < 0:

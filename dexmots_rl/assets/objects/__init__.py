@@ -8,11 +8,11 @@ training and held-out ones; ``object_scene_xml`` writes an object on a table as 
 
 from __future__ import annotations
 
-from .description import (FINGERS, GEOM_KINDS, MAX_MOVING_PARTS, Geom, GraspRegion, Joint, ObjectAsset, ObjectError,
-                          Part)
+from .description import (FINGERS, GEOM_KINDS, MAX_MOVING_PARTS, SCENE_PREFIX, Geom, GraspRegion, Joint, ObjectAsset,
+                          ObjectError, Part)
 from .library import INSTANCES, SPLITS, list_objects, load_object, object_split, sample_variants
 from .scene import object_scene_xml, posed_meshes
 
 __all__ = ["FINGERS", "GEOM_KINDS", "MAX_MOVING_PARTS", "Geom", "GraspRegion", "Joint", "ObjectAsset", "ObjectError",
-           "Part", "INSTANCES", "SPLITS", "list_objects", "load_object", "object_split", "sample_variants",
+           "Part", "SCENE_PREFIX", "INSTANCES", "SPLITS", "list_objects", "load_object", "object_split", "sample_variants",
            "object_scene_xml", "posed_meshes"]

@@ -15,10 +15,14 @@ a free object sits on the table: z = 0 is the table's surface when the object st
 :meth:`ObjectAsset.mjcf` writes the MJCF that MuJoCo compiles (the simulator's scene format):
 
 * one ``<body name="object">`` for the base, with a ``<freejoint name="object_free"/>`` when free;
-* one ``<body name="object/<part>">`` per moving part, with one ``<joint name="<joint>">`` (hinge or slide,
+* one ``<body name="object/<part>">`` per moving part, with one ``<joint name="object/<joint>">`` (hinge or slide,
   ``limited``, ``range``, ``stiffness``, ``springref``, ``damping``, ``frictionloss``, ``armature``);
 * collision geoms ``contype="2" conaffinity="1"`` named ``object/<part>/<geom>``, with their mass (the parts'
   inertias come from them); visual meshes ``contype="0" conaffinity="0" group="1" mass="0"``.
+
+Every name the object puts into a scene starts with ``object`` (:data:`SCENE_PREFIX`), so that a part or joint
+named like one of the hand's (``j3``) cannot clash with it; the simulator reads the joints back without the
+prefix (:func:`scene_joint_name`), so a user names them as the object does.
 """
 
 from __future__ import annotations
@@ -33,9 +37,10 @@ import numpy as np
 from ...atomic import atomic_write
 
 __all__ = ["Geom", "Joint", "Part", "GraspRegion", "ObjectAsset", "ObjectError", "MAX_MOVING_PARTS", "GEOM_KINDS",
-           "FINGERS"]
+           "FINGERS", "SCENE_PREFIX", "scene_joint_name"]
 
 MAX_MOVING_PARTS = 4
+SCENE_PREFIX = "object/"  # of the object's bodies, joints and geoms in a scene (the base body is "object")
 GEOM_KINDS = ("box", "capsule", "sphere", "cylinder", "mesh")
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -230,7 +235,7 @@ class ObjectAsset:
             children.setdefault(part.parent, []).append(part)
 
         def body(part: Part, indent: str) -> str:
-            name = "object" if part is self.parts[0] else f"object/{part.name}"
+            name = "object" if part is self.parts[0] else f"{SCENE_PREFIX}{part.name}"
             place = (pos, quat) if part is self.parts[0] else (part.pos, part.quat)
             out = [f'{indent}<body name="{name}" pos="{_v(place[0])}" quat="{_v(place[1])}">\n']
             if part is self.parts[0] and self.base == "free":
@@ -238,7 +243,7 @@ class ObjectAsset:
             if part.joint is not None:
                 j = part.joint
                 out.append(
-                    f'{indent}  <joint name="{j.name}" type="{j.kind}" axis="{_v(j.axis)}" pos="{_v(j.anchor)}" '
+                    f'{indent}  <joint name="{SCENE_PREFIX}{j.name}" type="{j.kind}" axis="{_v(j.axis)}" pos="{_v(j.anchor)}" '
                     f'limited="true" range="{_v(j.range)}" stiffness="{_n(j.stiffness)}" springref="{_n(j.rest)}" '
                     f'damping="{_n(j.damping)}" frictionloss="{_n(j.friction)}" armature="{_n(j.armature)}"/>\n')
             for g in part.geoms:
@@ -252,6 +257,11 @@ class ObjectAsset:
             return "".join(out)
 
         return "".join(assets), body(self.parts[0], "    ")
+
+
+def scene_joint_name(name: str) -> str:
+    """An object joint's own name from its name in a scene (scenes written before the prefix: unchanged)."""
+    return name[len(SCENE_PREFIX):] if name.startswith(SCENE_PREFIX) else name
 
 
 def _n(x: float) -> str:
