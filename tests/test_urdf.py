@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import partnet_fixtures as fx
-from dexmots_rl.assets.objects import ObjectError
+from dexmots_rl.assets.objects import SCENE_PREFIX, ObjectError
 from dexmots_rl.assets.objects.urdf import (CONTINUOUS_RANGE, DEFAULT_DENSITY, DEFAULT_SIZE, HINGE_DEFAULTS,
                                             MIN_HALF_EXTENT, UrdfError, load_urdf)
 
@@ -123,13 +123,13 @@ def check_against_original(urdf: Path, asset, tmp_path: Path, positions=(0.0, 0.
             q = low + fraction * (high - low)
             original_q = q / factor if joint.kind == "slide" else q
             d_orig.qpos[original.joint(joint.name).qposadr[0]] = original_q
-            d_ours.qpos[ours.joint(joint.name).qposadr[0]] = q
+            d_ours.qpos[ours.joint(SCENE_PREFIX + joint.name).qposadr[0]] = q
         if asset.base == "free":
             d_ours.qpos[3] = 1.0
         mujoco.mj_kinematics(original, d_orig)
         mujoco.mj_kinematics(ours, d_ours)
         for joint in asset.joints:
-            a, b = original.joint(joint.name).id, ours.joint(joint.name).id
+            a, b = original.joint(joint.name).id, ours.joint(SCENE_PREFIX + joint.name).id
             np.testing.assert_allclose(d_ours.xanchor[b], origin + factor * d_orig.xanchor[a], atol=ANCHOR_TOL)
             np.testing.assert_allclose(d_ours.xaxis[b], d_orig.xaxis[a], atol=1e-9)
         expected, got = visual_points(original, d_orig, original_owner), visual_points(ours, d_ours, our_owner)
