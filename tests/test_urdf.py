@@ -293,6 +293,20 @@ BAD_FILES = {
     "bad origin": (lambda t: _mutate(t, 'rpy="0 0 0"', 'rpy="0 zero 0"'), "joint 'joint_0' <origin rpy>"),
     "missing mesh": (lambda t: _mutate(t, "original-3.obj", "original-99.obj"),
                      "link 'link_0' <visual> <mesh filename='textured_objs/original-99.obj'>: no such file"),
+    # magnitudes no object has: each would go non-finite in float32 or make a part spin
+    "huge origin": (lambda t: _mutate(t, 'xyz="-0.45 0.2 0"', 'xyz="1e30 0.2 0"'),
+                    "joint 'joint_0' <origin xyz>: '1e30 0.2 0' is out of range (each at most 1000"),
+    "huge hinge limits": (lambda t: _mutate(t, 'lower="0" upper="0.45"', 'lower="-1e6" upper="1e6"'),
+                          "joint 'joint_0' <limit lower>: '-1e6' is out of range (each at most 12.5"),
+    "huge damping": (lambda t: _mutate(t, '<limit lower="0" upper="0.45"/>',
+                                       '<limit lower="0" upper="0.45"/><dynamics damping="1e30"/>'),
+                     "joint 'joint_0' <dynamics damping>: '1e30' is out of range (each at most 10 in"),
+    "huge mesh scale": (lambda t: _mutate(t, 'original-3.obj"', 'original-3.obj" scale="1e6 1 1"'),
+                        "link 'link_0' <visual> <mesh scale>: '1e6 1 1' is out of range"),
+    "all fixed": (lambda t: _mutate(t, 'type="revolute"', 'type="fixed"'),
+                  "no moving joint (every joint is fixed, or a revolute/prismatic one with lower == upper): "
+                  "there is nothing to operate; joints: ['joint_1', 'joint_0']"),
+    "only welded": (lambda t: _mutate(t, 'lower="0" upper="0.45"', 'lower="0.2" upper="0.2"'), "no moving joint"),
 }
 
 
@@ -306,6 +320,36 @@ def test_bad_file_names_the_file_and_the_element(tmp_path, case):
         load_urdf(urdf)
     assert str(urdf) in str(error.value) and message in str(error.value), str(error.value)
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # nothing written
+
+
+@pytest.mark.parametrize("vertices, message", [
+    ([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]], "degenerate (its triangles have no area)"),
+    ([[0, 0, 0], [0.1, 0, 0], [0, float("nan"), 0]], "has no triangles"),  # trimesh drops the bad face
+    ([[0, 0, 0], [0.1, 0, 0], [0, 1e30, 0]], "vertices must be finite and within 1000"),
+])
+def test_bad_mesh_names_the_file_and_the_element(tmp_path, vertices, message):
+    urdf = fx.stapler(tmp_path / "700002")
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in vertices]
+    (urdf.parent / "textured_objs" / "original-3.obj").write_text("\n".join(lines + ["f 1 2 3", ""]))
+    with pytest.raises(UrdfError) as error:
+        load_urdf(urdf)
+    assert f"{urdf}: link 'link_0' <visual> mesh 'textured_objs/original-3.obj': {message}" in str(error.value), \
+        str(error.value)
+
+
+def test_sizes_and_slides_out_of_range(tmp_path):
+    urdf = fx.stapler(tmp_path / "700003")
+    with pytest.raises(UrdfError, match=r"scale 1000000.0 makes the object 1e\+06 m long; its longest side "
+                                        r"must be within \(0.01, 1.0\) m"):
+        load_urdf(urdf, scale=1e6)
+    with pytest.raises(ObjectError, match=r"^load_urdf: size must be within \(0.01, 1.0\) m .*got 1000"):
+        load_urdf(urdf, size=1000)
+    with pytest.raises(ObjectError, match=r"^load_urdf: density must be within"):
+        load_urdf(urdf, density=1e30)
+    drawer = fx.drawer(tmp_path / "700004")
+    drawer.write_text(_mutate(drawer.read_text(), 'lower="0" upper="0.5"', 'lower="0" upper="50"'))
+    with pytest.raises(UrdfError, match=r"joint 'joint_0' <limit>: \(0, 50\) slides farther than 2 times"):
+        load_urdf(drawer)
 
 
 def test_bad_arguments(tmp_path):

@@ -27,7 +27,10 @@ mesh paths relative to the file survive); trimesh loads the meshes. What the loa
   ``<dynamics damping friction>`` when present, else :data:`HINGE_DEFAULTS` / :data:`SLIDE_DEFAULTS`, in SI
   units of the scaled object. ``<limit effort velocity>`` and ``<mimic>`` are ignored.
 
-A bad file raises one :class:`UrdfError` naming the file and the element; nothing is written to disk.
+A bad file raises one :class:`UrdfError` naming the file and the element; nothing is written to disk. Bad
+files include magnitudes no object has (:mod:`.urdf_check`'s bounds; a scaled size outside :data:`SIZE_RANGE`;
+a slide longer than :data:`MAX_SLIDE_TRAVEL` times the object), meshes without area or with non-finite
+vertices, and a file without a moving joint (nothing to operate).
 """
 
 from __future__ import annotations
@@ -45,10 +48,11 @@ import trimesh
 
 from . import mesh_fit
 from .description import MAX_MOVING_PARTS, Geom, Joint, ObjectAsset, ObjectError, Part
-from .urdf_check import UrdfError, UrdfJoint, check_urdf
+from .urdf_check import MAX_COORDINATE, UrdfError, UrdfJoint, check_urdf
 
 __all__ = ["load_urdf", "UrdfError", "DEFAULT_SIZE", "DEFAULT_DENSITY", "CONTINUOUS_RANGE", "HINGE_DEFAULTS",
-           "SLIDE_DEFAULTS", "PIVOT_RADIUS", "MIN_HALF_EXTENT"]
+           "SLIDE_DEFAULTS", "PIVOT_RADIUS", "MIN_HALF_EXTENT", "SIZE_RANGE", "MAX_SLIDE_TRAVEL",
+           "DENSITY_RANGE"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +63,9 @@ HINGE_DEFAULTS = {"damping": 0.01, "friction": 0.002}  # N m s/rad, N m: a lid o
 SLIDE_DEFAULTS = {"damping": 0.5, "friction": 0.02}  # N s/m, N: a drawer that glides, then stops
 PIVOT_RADIUS = 0.005  # m
 MIN_HALF_EXTENT = 0.001  # m: flat pieces become 2 mm thick boxes
+SIZE_RANGE = (0.01, 1.0)  # m, the scaled object's longest side: a button to a cabinet on the hand's table
+MAX_SLIDE_TRAVEL = 2.0  # a slide's limits, in units of the object's longest side
+DENSITY_RANGE = (10.0, 2.0e4)  # kg/m^3: foam to lead
 _PALETTE = ((0.62, 0.62, 0.66, 1.0), (0.85, 0.45, 0.2, 1.0), (0.25, 0.55, 0.85, 1.0), (0.35, 0.7, 0.35, 1.0),
             (0.8, 0.75, 0.3, 1.0))
 
@@ -99,6 +106,14 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
     if not longest > 0:
         raise UrdfError(f"{where}: the geometry has no extent (all vertices coincide)")
     factor = float(scale) if scale is not None else (size if size is not None else DEFAULT_SIZE) / longest
+    if not SIZE_RANGE[0] <= factor * longest <= SIZE_RANGE[1]:
+        given = f"scale {scale!r}" if scale is not None else f"size {size!r}"
+        raise UrdfError(f"{where}: {given} makes the object {factor * longest:.3g} m long; its longest side must be "
+                        f"within {SIZE_RANGE} m")
+    for j in tree.joints.values():
+        if j.type == "prismatic" and max(abs(j.lower), abs(j.upper)) > MAX_SLIDE_TRAVEL * longest:
+            raise UrdfError(f"{where}: joint {j.name!r} <limit>: ({j.lower:g}, {j.upper:g}) slides farther than "
+                            f"{MAX_SLIDE_TRAVEL:g} times the object's size ({longest:.3g} in the file's units)")
     origin = -factor * np.array([(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, low[2]])
 
     operated = (tree.joint_named(operated_joint) if operated_joint is not None else
@@ -172,6 +187,10 @@ def _check_arguments(scale, size, density, base, max_geoms_per_part, collision) 
     for field, value in (("scale", scale), ("size", size), ("density", density)):
         if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise ObjectError(f"load_urdf: {field} must be a positive number, got {value!r}")
+    if size is not None and not SIZE_RANGE[0] <= size <= SIZE_RANGE[1]:
+        raise ObjectError(f"load_urdf: size must be within {SIZE_RANGE} m (the object's longest side), got {size!r}")
+    if not DENSITY_RANGE[0] <= density <= DENSITY_RANGE[1]:
+        raise ObjectError(f"load_urdf: density must be within {DENSITY_RANGE} kg/m^3, got {density!r}")
     if base not in ("free", "fixed"):
         raise ObjectError(f"load_urdf: base must be 'free' or 'fixed', got {base!r}")
     if not (isinstance(max_geoms_per_part, int) and max_geoms_per_part >= 1):
@@ -188,6 +207,9 @@ def _choose_moving(where: str, joints: dict[str, UrdfJoint], operated: str | Non
         if j.child in welded:
             log.warning("%s: joint %r has lower == upper (%g): welded", where, j.name, j.lower)
     candidates = [j for j in movable if j.child not in welded]
+    if not candidates:
+        raise UrdfError(f"{where}: no moving joint (every joint is fixed, or a revolute/prismatic one with "
+                        f"lower == upper): there is nothing to operate; joints: {[j.name for j in joints.values()]}")
     if operated is not None:
         chosen = [j for j in candidates if j.name == operated]
         if not chosen:
@@ -297,6 +319,11 @@ def _geom_mesh(where, element, spec, geom, meshdir: Path, cache: dict) -> trimes
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
             raise UrdfError(f"{where}: {element} mesh {asset.file!r}: has no triangles")
         loaded.apply_transform(np.diag([*np.asarray(asset.scale, dtype=float), 1.0]))
+        if not np.isfinite(loaded.vertices).all() or np.abs(loaded.vertices).max() > MAX_COORDINATE:
+            raise UrdfError(f"{where}: {element} mesh {asset.file!r}: vertices must be finite and within "
+                            f"{MAX_COORDINATE:g} of the link's origin")
+        if not loaded.area > 0:
+            raise UrdfError(f"{where}: {element} mesh {asset.file!r}: degenerate (its triangles have no area)")
         cache[key] = loaded
     return cache[key].copy()
 

@@ -16,9 +16,17 @@ from pathlib import Path
 
 from .description import ObjectError
 
-__all__ = ["UrdfError", "UrdfJoint", "CheckedUrdf", "check_urdf", "JOINT_TYPES"]
+__all__ = ["UrdfError", "UrdfJoint", "CheckedUrdf", "check_urdf", "JOINT_TYPES", "MAX_COORDINATE", "MAX_HINGE_LIMIT",
+           "MAX_DYNAMICS"]
 
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
+# Magnitudes beyond these are typing errors, not objects: in float32 they leave no digits for a step's motion.
+MAX_COORDINATE = 1.0e3  # m: an origin, a slide's limit, a mesh scale factor (the file's units, before scaling)
+MAX_HINGE_LIMIT = 4.0 * math.pi  # rad: two turns either way (a screw cap's thread)
+# <dynamics> values, in SI units of the scaled object: N m s/rad and N m (a hinge), N s/m and N (a slide);
+# a hand's finger gives about 0.5 N m or 5 N, so larger values hold a part still for any hand
+MAX_DYNAMICS = {("revolute", "damping"): 10.0, ("revolute", "friction"): 10.0,
+                ("prismatic", "damping"): 1.0e3, ("prismatic", "friction"): 1.0e2}
 _GEOMETRIES = ("mesh", "box", "cylinder", "sphere")
 
 
@@ -133,7 +141,9 @@ def _compiler(robot: ET.Element) -> ET.Element:
     return compiler
 
 
-def _numbers(where: str, element: str, text: str | None, count: int, default: tuple) -> tuple:
+def _numbers(where: str, element: str, text: str | None, count: int, default: tuple,
+             largest: float = math.inf) -> tuple:
+    """``count`` finite numbers of magnitude at most ``largest`` from an attribute's text (``default`` if absent)."""
     if text is None:
         return default
     try:
@@ -142,14 +152,16 @@ def _numbers(where: str, element: str, text: str | None, count: int, default: tu
         values = ()
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise UrdfError(f"{where}: {element}: expected {count} finite numbers, got {text!r}")
+    if any(abs(v) > largest for v in values):
+        raise UrdfError(f"{where}: {element}: {text!r} is out of range (each at most {largest:g} in magnitude)")
     return values
 
 
 def _check_origin(where: str, element: str, parent: ET.Element) -> None:
     origin = parent.find("origin")
     if origin is not None:
-        _numbers(where, f"{element} <origin xyz>", origin.get("xyz"), 3, (0.0,) * 3)
-        _numbers(where, f"{element} <origin rpy>", origin.get("rpy"), 3, (0.0,) * 3)
+        _numbers(where, f"{element} <origin xyz>", origin.get("xyz"), 3, (0.0,) * 3, MAX_COORDINATE)
+        _numbers(where, f"{element} <origin rpy>", origin.get("rpy"), 3, (0.0,) * 3, MAX_HINGE_LIMIT)
 
 
 def _check_geometry(where: str, element: str, item: ET.Element, meshdir: Path) -> None:
@@ -165,7 +177,7 @@ def _check_geometry(where: str, element: str, item: ET.Element, meshdir: Path) -
     filename = shape.get("filename")
     if not filename:
         raise UrdfError(f"{where}: {element} <mesh>: no filename")
-    scale = _numbers(where, f"{element} <mesh scale>", shape.get("scale"), 3, (1.0,) * 3)
+    scale = _numbers(where, f"{element} <mesh scale>", shape.get("scale"), 3, (1.0,) * 3, MAX_COORDINATE)
     if any(s == 0 for s in scale):
         raise UrdfError(f"{where}: {element} <mesh scale>: a zero scale flattens the mesh, got {scale}")
     file = Path(filename) if Path(filename).is_absolute() else meshdir / filename
@@ -203,8 +215,9 @@ def _joint(where: str, index: int, element: ET.Element, links: set[str]) -> Urdf
         limit = element.find("limit")
         if limit is None or limit.get("lower") is None or limit.get("upper") is None:
             raise UrdfError(f"{where}: {at}: a {kind} joint needs <limit lower=... upper=...>")
-        (lower,) = _numbers(where, f"{at} <limit lower>", limit.get("lower"), 1, ())
-        (upper,) = _numbers(where, f"{at} <limit upper>", limit.get("upper"), 1, ())
+        largest = MAX_HINGE_LIMIT if kind == "revolute" else MAX_COORDINATE
+        (lower,) = _numbers(where, f"{at} <limit lower>", limit.get("lower"), 1, (), largest)
+        (upper,) = _numbers(where, f"{at} <limit upper>", limit.get("upper"), 1, (), largest)
         if lower > upper:
             raise UrdfError(f"{where}: {at}: <limit> lower {lower:g} > upper {upper:g}")
     damping = friction = None
@@ -212,7 +225,8 @@ def _joint(where: str, index: int, element: ET.Element, links: set[str]) -> Urdf
     if dynamics is not None:
         for field in ("damping", "friction"):
             if dynamics.get(field) is not None:
-                (value,) = _numbers(where, f"{at} <dynamics {field}>", dynamics.get(field), 1, ())
+                largest = MAX_DYNAMICS[("prismatic" if kind == "prismatic" else "revolute", field)]
+                (value,) = _numbers(where, f"{at} <dynamics {field}>", dynamics.get(field), 1, (), largest)
                 if value < 0:
                     raise UrdfError(f"{where}: {at} <dynamics {field}>: must be >= 0, got {value:g}")
                 damping, friction = (value, friction) if field == "damping" else (damping, value)
