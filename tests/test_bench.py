@@ -83,3 +83,27 @@ def test_pipeline_bench_reports_rollout_and_collector_against_the_kernels():
         assert math.isfinite(row[key]) and row[key] > 0, key
     assert row["rollout_fraction"] == pytest.approx(row["rollout_steps_per_s"] / row["kernel_steps_per_s"])
     assert row["collector_fraction"] == pytest.approx(row["collector_steps_per_s"] / row["kernel_steps_per_s"])
+
+
+def test_baselines_bench_times_our_loops_and_torchrls_on_the_same_env():
+    result = run(["baselines", "--num-envs", "4", "--iterations", "2", "--methods", "ppo", "sac", "--quiet",
+                  "algo.hidden=[16]", "sac:algo.batch_size=8", "task.max_episode_steps=6"])
+    assert [r["method"] for r in result["rows"]] == ["ppo", "sac"]
+    for row in result["rows"]:
+        for who in ("ours", "reference"):
+            for key in ("env_steps_per_cpu_s", "updates_per_cpu_s", "env_steps_per_wall_s", "updates_per_wall_s"):
+                assert math.isfinite(row[f"{who}_{key}"]) and row[f"{who}_{key}"] > 0, (row["method"], who, key)
+        assert row["ratio_updates_per_cpu_s"] == pytest.approx(row["ours_updates_per_cpu_s"]
+                                                               / row["reference_updates_per_cpu_s"])
+
+
+def test_baselines_bench_rates_leave_out_the_warm_up_and_count_only_learning_iterations():
+    from dexmots_rl.apps.bench_baselines import rates
+
+    row = {"collect_cpu_s": 1.0, "collect_wall_s": 2.0, "learn_cpu_s": 0.5, "learn_wall_s": 1.0}
+    rows = [{**row, "env_steps": 999, "updates": 999, "collect_cpu_s": 100.0},  # warm-up: left out
+            {**row, "env_steps": 10, "updates": 0, "learn_cpu_s": 9.0},          # random frames: no updates
+            {**row, "env_steps": 10, "updates": 4}]
+    out = rates(rows)
+    assert out["env_steps_per_cpu_s"] == 10.0 and out["env_steps_per_wall_s"] == 5.0
+    assert out["updates_per_cpu_s"] == 8.0 and out["updates_per_wall_s"] == 4.0

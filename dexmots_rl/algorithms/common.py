@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 import warnings
 
 import torch
@@ -198,8 +199,10 @@ def batch_metrics(data, counters: dict) -> dict:
 class CollectorLoop:
     """The end of every collector iteration of PPO, SAC and PGDM, and of their runs.
 
-    The trainer counts ``counters["iteration"]`` and ``counters["env_steps"]`` itself; :meth:`end_iteration`
-    then stops the clock for the row, logs the row (:func:`batch_metrics` + the method's statistics),
+    The trainer iterates :meth:`batches` (the collector's batches, their collection timed apart) and counts
+    ``counters["iteration"]`` and ``counters["env_steps"]`` itself; :meth:`end_iteration`
+    then stops the clock for the row, logs the row (:func:`batch_metrics` + the method's statistics + the
+    iteration's CPU and wall seconds spent collecting and learning, ``collect_*`` / ``learn_*``),
     checks the budget, writes a checkpoint every ``checkpoint_every`` iterations, at the end and at
     ``stop_after``, runs the periodic evaluations (their time is not training time), and says whether to
     stop. :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
@@ -218,6 +221,22 @@ class CollectorLoop:
         self.bar = progress_bar(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
                         desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
         self.clock = TrainingClock(self.counters)
+        self._collected = (0.0, 0.0)  # the last batch's collection (CPU s, wall s)
+        self._last = (self.counters["cpu_s"], self.counters["wall_clock_s"])  # training time at the last row
+
+    def batches(self, collector):
+        """``collector``'s batches (none for ``None``), each one's collection time measured apart from the
+        learning that follows it (the rows' ``collect_cpu_s`` / ``learn_cpu_s``: ``dexmots-bench baselines``)."""
+        if collector is None:
+            return
+        batches = iter(collector)
+        while True:
+            cpu, wall = time.process_time(), time.perf_counter()
+            data = next(batches, None)
+            if data is None:
+                return
+            self._collected = (time.process_time() - cpu, time.perf_counter() - wall)
+            yield data
 
     def start(self, collector, modules: dict, optimizers: dict) -> None:
         """Call once ``collector`` (None: nothing left to collect) is built: building it resets the worlds,
@@ -266,7 +285,13 @@ class CollectorLoop:
         ``optimizers`` when due, evaluate when due; True when the run is over."""
         counters = self.counters
         self.clock.read(counters)
-        row = {**batch_metrics(data, counters), **stats}
+        (collect_cpu, collect_wall), (last_cpu, last_wall) = self._collected, self._last
+        self._last = (counters["cpu_s"], counters["wall_clock_s"])
+        # learning: the rest of the iteration since the last row (the method's updates, this loop's bookkeeping)
+        timing = {"collect_cpu_s": collect_cpu, "collect_wall_s": collect_wall,
+                  "learn_cpu_s": max(0.0, counters["cpu_s"] - last_cpu - collect_cpu),
+                  "learn_wall_s": max(0.0, counters["wall_clock_s"] - last_wall - collect_wall)}
+        row = {**batch_metrics(data, counters), **stats, **{k: round(v, 4) for k, v in timing.items()}}
         self.run.log(row)
         self.bar.update(1)
         self.bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",

@@ -102,13 +102,14 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
     loop = CollectorLoop(run, policy, vecnorm, iterations)
     modules, optimizers = {"policy": policy, "critic": critic, "vecnorm": vecnorm}, {"optimizer": optimizer}
     counters = loop.counters
+    counters.setdefault("updates", 0)  # Adam steps so far (a checkpoint of an older run may lack the count)
     # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
     frames = loop.frames_left(frames_per_batch)
     collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
                           exploration_type=ExplorationType.RANDOM,
                           auto_register_policy_transforms=False) if frames else None
     loop.start(collector, modules, optimizers)  # a resumed run continues from its checkpoint
-    for data in collector or ():
+    for data in loop.batches(collector):
         # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
         updates = 0
@@ -141,8 +142,10 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
                 group["lr"] = a.lr * (1.0 - loop.progress())
         collector.update_policy_weights_()  # single process: the collector already holds this actor
         counters["env_steps"] += data.numel()
+        counters["updates"] += updates
 
-        stats = {**{k: v / max(updates, 1) for k, v in stats.items()}, "lr": optimizer.param_groups[0]["lr"],
+        stats = {**{k: v / max(updates, 1) for k, v in stats.items()}, "updates": counters["updates"],
+                 "lr": optimizer.param_groups[0]["lr"],
                  "policy_std": float(data.get("scale").mean())}
         if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
             stats[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())

@@ -100,7 +100,7 @@ def _train(run: RunDirectory) -> dict:
     if 0 < counters["env_steps"] >= a.init_random_frames:  # resumed past the random frames: frozen, as it was
         vecnorm.freeze()                                      # (VecNorm's state_dict does not hold the flag)
     updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
-    for data in collector or ():
+    for data in loop.batches(collector):
         store_transitions(buffer, data)
         counters["iteration"] += 1
         counters["env_steps"] += data.numel()

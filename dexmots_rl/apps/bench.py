@@ -5,6 +5,7 @@
     dexmots-bench grad --task spray_bottle --json --draws 2          # a tool task, from its pre-grasp
     dexmots-bench grad --task operate --object jar_a --json --draws 2 # any library object
     dexmots-bench pipeline --task screw_claw --json [--num-envs 64 256]   # env/collector vs kernels
+    dexmots-bench baselines --task screw_claw --json [--methods ppo sac pgdm]  # vs torchrl's sota loops
     dexmots-bench plan --task screw_claw --json [--iterations 200]
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
     dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
@@ -12,7 +13,8 @@
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_compile` and :mod:`.bench_gpu`; ``compile`` and
+:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`, :mod:`.bench_compile` and
+:mod:`.bench_gpu`; ``compile`` and
 ``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
 """
 
@@ -63,6 +65,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=50, help="env steps per timed chunk")
     p.add_argument("--min-time", type=float, default=2.0, help="seconds of timed work per number")
     p.add_argument("--torch-threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
+
+    p = sub.add_parser("baselines", help="PPO / SAC / PGDM loops: env-steps/s and updates/s against torchrl's "
+                                         "sota implementations on the same env")
+    p.add_argument("--task", default="screw_claw", choices=list_tasks())
+    p.add_argument("--methods", nargs="+", default=["ppo", "sac", "pgdm"], choices=["ppo", "sac", "pgdm"])
+    p.add_argument("--iterations", type=int, default=6, help="collector iterations per loop (the first is warm-up)")
+    p.add_argument("--num-envs", type=int, default=64)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--torch-threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
+    p.add_argument("overrides", nargs="*", help="hydra overrides of both loops' configs, e.g. algo.hidden=[128]; "
+                                                "sac:algo.batch_size=256 for one method's only")
 
     p = sub.add_parser("grad", help="AD vs central finite differences in float64")
     common(p, grad_bench_tasks())
@@ -190,6 +205,11 @@ def _execute(args: argparse.Namespace) -> dict:
 
             return run_pipeline(args.task, args.num_envs, args.steps, args.min_time, args.device,
                                 args.torch_threads or None)
+        if args.bench == "baselines":
+            from .bench_baselines import run_baselines
+
+            return run_baselines(args.task, args.methods, args.iterations, args.num_envs, args.seed,
+                                 args.torch_threads or None, args.overrides)
         if args.bench == "plan":
             from .plan import run_plan_bench
 
