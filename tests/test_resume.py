@@ -25,7 +25,8 @@ ALGOS = {
     "sac": ["algo=sac", "algo.frames_per_batch=16", "algo.total_frames=64", "algo.init_random_frames=32",
             "algo.batch_size=8", "algo.hidden=[16]", "algo.buffer_size=40"],  # the buffer wraps around
 }
-TIMINGS = ("wall_clock_s", "cpu_s", "train_wall_clock_s", "train_cpu_s", "run_dir", "provenance")
+TIMINGS = ("wall_clock_s", "cpu_s", "train_wall_clock_s", "train_cpu_s", "collect_cpu_s", "collect_wall_s", "learn_cpu_s",
+           "learn_wall_s", "run_dir", "provenance")
 
 
 def _cfg(algo, run_dir, *overrides):
