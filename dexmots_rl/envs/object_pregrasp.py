@@ -265,12 +265,13 @@ def object_drift(sim, steps: int, joint_index: int) -> tuple[float, float]:
 def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FREE_POSE, candidates: int = 8,
                           seed: int = 0, squeeze: float = 0.003, settle_steps: int = 30, release_steps: int = 20,
                           keep: int = 4, contact=None, joint: str | None = None, max_base_shift: float = 0.001,
-                          max_joint_shift: float = 0.05) -> np.ndarray:
+                          max_joint_shift: float = 0.05, progress: bool = False) -> np.ndarray:
     """Up to ``keep`` verified pre-grasps [K, nu] of ``asset`` in ``scene`` (an
     :class:`~dexmots_rl.sim.ArticulatedScene`); see the module docstring. IK starts a finger with a region
-    from ``hint``; the others keep ``free_pose``."""
+    from ``hint``; the others keep ``free_pose``. ``progress``: show the search's stages (tqdm)."""
     import mujoco
     import torch
+    from tqdm.auto import tqdm
 
     from ..sim import ArticulatedSimulator
 
@@ -282,7 +283,9 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     rng = np.random.default_rng(seed)
     mujoco.mj_forward(model, data)
     poses = np.zeros((candidates, nu))
+    bar = tqdm(total=candidates + settle_steps + 1, desc=f"pre-grasps of {asset.name}", disable=not progress)
     for c in range(candidates):
+        bar.update()
         q = model.qpos0.copy()
         q[:nu] = free_pose
         for r in regions:
@@ -315,6 +318,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     params = sim.default_params()
     with torch.no_grad():
         for _ in range(settle_steps):
+            bar.update()
             out = sim.step(joint_q, joint_qd, control, params)
             joint_q = torch.cat([out.joint_q[:, :nu], rest_q], -1)
             joint_qd = torch.cat([out.joint_qd[:, :nu], rest_qd], -1)
@@ -326,6 +330,8 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     shift, moved = release_drift(sim, settled, release_steps, index)
     alone_shift, alone_moved = object_drift(sim, release_steps, index)
     shift, moved = shift - alone_shift, moved - alone_moved
+    bar.update()
+    bar.close()
     kept = []
     for c in range(candidates):
         ok, details = check_object_pregrasp(model, data, scene, asset, settled[c], regions)

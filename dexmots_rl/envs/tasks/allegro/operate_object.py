@@ -9,8 +9,8 @@ its goal is ``rest + goal_fraction (far end - rest)``, the far end being the end
 rest (90 % of the travel by default: the original code's goal); every joint's damping, Coulomb friction and
 spring stiffness are drawn within ``param_scale`` (relative) of the object's values. The hand starts from one
 of the object's pre-grasps (``initial="pregrasp"``, the default: fingertips resting where a person holds the
-tool, :mod:`dexmots_rl.envs.object_pregrasp`; the package ships a file per library object, and a URDF's come from
-``dexmots-pregrasp --task operate --object <path>`` through ``task.pregrasps``), or open above the object
+tool, :mod:`dexmots_rl.envs.object_pregrasp`; the package ships a file per library object, and a URDF's are searched
+on first use and kept beside its scene, :mod:`.urdf_object`; ``task.pregrasps`` overrides), or open above the object
 (``initial="open"``), with joint noise. Success at the episode end: the joint within
 ``success_band`` (a fraction of its range) of the goal, and a free base moved less than ``max_base_shift`` and
 tilted less than ``max_base_tilt`` from where it stood.
@@ -64,6 +64,7 @@ from ...registry import register_task
 from ...config import TaskConfig, rule
 from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward, distal_weighted_joint_weights, \
     fingertip_reward
+from .urdf_object import UrdfOptions, cached_pregrasps, urdf_load_options
 
 __all__ = ["OperateObjectConfig", "OperateObjectEnv", "HAND_CONTACT", "build_scene"]
 
@@ -80,9 +81,11 @@ class OperateObjectConfig(TaskConfig):
     name: str = "operate"
     object: str = "spray_bottle_a"  # a library object (dexmots_rl.assets.objects.list_objects) or a .urdf path
     joint: Optional[str] = None  # the operated joint (None: the object's operated_joint)
+    urdf: UrdfOptions = dataclasses.field(default_factory=UrdfOptions)  # how a .urdf object is loaded
     initial: str = dataclasses.field(default="pregrasp", metadata=rule(choices="initial_choices"))
     initial_choices: ClassVar[tuple[str, ...]] = ("pregrasp", "open")
-    pregrasps: Optional[str] = None  # a pre-grasp file (dexmots-pregrasp --task operate --object ...); None: shipped
+    # a pre-grasp file (dexmots-pregrasp --task operate --object ...); None: shipped, or a URDF's cached ones
+    pregrasps: Optional[str] = None
     goal_fraction: float = dataclasses.field(default=0.9, metadata=rule(gt=0, le=1))  # of the joint's travel
     success_band: float = dataclasses.field(default=0.1, metadata=rule(gt=0, le=1))  # of the joint's range
     max_base_shift: float = 0.02  # m: a free base moved farther fails
@@ -111,12 +114,15 @@ class OperateObjectConfig(TaskConfig):
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
 
 
-def scene_dir(object_name: str) -> Path:
-    """Where the scene of ``object_name`` is written (its MJCF and mesh files; the recorder and the viewer read
-    it back): ``$DEXMOTS_CACHE`` or ``~/.cache/dexmots_rl``, then ``scenes/<object>-<hash>``."""
+def scene_dir(object_name: str, options: dict | None = None) -> Path:
+    """Where the scene of ``object_name`` (loaded with ``options``) is written (its MJCF and mesh files; the
+    recorder and the viewer read it back; a URDF's pre-grasps): ``$DEXMOTS_CACHE`` or ``~/.cache/dexmots_rl``,
+    then ``scenes/<object>-<hash>``."""
     root = Path(os.environ.get("DEXMOTS_CACHE", Path.home() / ".cache" / "dexmots_rl"))
-    digest = hashlib.sha1(str(Path(object_name).resolve() if object_name.endswith(".urdf") else object_name)
-                          .encode()).hexdigest()[:10]
+    key = str(Path(object_name).resolve() if object_name.endswith(".urdf") else object_name)
+    if options:
+        key += repr(sorted(options.items()))
+    digest = hashlib.sha1(key.encode()).hexdigest()[:10]
     return root / "scenes" / f"{Path(object_name).stem}-{digest}"
 
 
@@ -137,31 +143,36 @@ def object_names(objects, object_name: str | None = None) -> list[str]:
 
 
 def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale: float = 0.1,
-                variant_seed: int = 0):
+                variant_seed: int = 0, urdf: UrdfOptions | None = None, joint: str | None = None):
     """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
     and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none). With
     ``objects`` (names or URDF paths) or ``variants`` >= 2 (size variants of ``object_name``), a scene of those
-    object variants (the module docstring); the object returned is variant 0's."""
+    object variants (the module docstring); the object returned is variant 0's. ``urdf`` and ``joint``: how a
+    URDF is loaded (:func:`.urdf_object.urdf_load_options`)."""
     from ....assets.objects import load_object, sample_variants
     from ....sim import load_scene
     from ....sim.object_variants import load_variants
 
+    urdf = urdf or UrdfOptions()
     if objects:
         names = object_names(objects, object_name)
-        assets, keys = [load_object(name) for name in names], names
+        options = [urdf_load_options(urdf, joint, name) for name in names]
+        assets = [load_object(name, **given) for name, given in zip(names, options)]
+        keys = list(zip(names, options))
     elif variants >= 2:
         assets = sample_variants(object_name, variants, variant_seed, variant_scale)
-        keys = [object_name] + [f"{a.name}-seed{variant_seed}-scale{variant_scale!r}" for a in assets[1:]]
+        keys = [(object_name, {})] + [(f"{a.name}-seed{variant_seed}-scale{variant_scale!r}", {}) for a in assets[1:]]
     else:
-        asset = load_object(object_name)
-        return load_scene(_write_scene(asset, object_name)), asset
-    return load_variants([_write_scene(asset, key) for asset, key in zip(assets, keys)]), assets[0]
+        given = urdf_load_options(urdf, joint, object_name)
+        asset = load_object(object_name, **given)
+        return load_scene(_write_scene(asset, object_name, given)), asset
+    return load_variants([_write_scene(asset, *key) for asset, key in zip(assets, keys)]), assets[0]
 
 
-def _write_scene(asset, key: str) -> Path:
+def _write_scene(asset, key: str, options: dict) -> Path:
     from ....assets.hand_scene import hand_object_scene_xml
 
-    folder = scene_dir(key)
+    folder = scene_dir(key, options)
     folder.mkdir(parents=True, exist_ok=True)
     xml = hand_object_scene_xml(asset, folder)  # writes the mesh files, each atomically
     path = folder / "scene.xml"
@@ -246,16 +257,26 @@ class OperateObjectEnv(DexEnv):
 
         return operate_bench_poses(self)
 
-    def _read_pregrasps(self, object_name: str) -> torch.Tensor:
+    def _read_pregrasps(self, object_name: str) -> torch.Tensor | None:
         """The start poses [K, nu] of ``object_name`` (``task.object`` or one of ``task.objects``):
-        ``task.pregrasps`` or the library object's shipped file, checked whole."""
+        ``task.pregrasps``, the library object's shipped file or a URDF's cached one, checked whole; None: a URDF
+        for which none was found (the open start)."""
         c, scene = self.config, self.sim.scene
         library = not object_name.lower().endswith(".urdf")
-        if c.pregrasps is None and not library:
-            raise PregraspError(f"task.object {object_name!r}: a URDF object has no shipped pre-grasps; write them "
-                                f"with dexmots-pregrasp --task operate --object {object_name} and pass "
-                                "task.pregrasps=<file>, or start with task.initial=open")
-        path = Path(c.pregrasps).expanduser() if c.pregrasps is not None else operate_pregrasp_path(object_name)
+        if c.pregrasps is not None:
+            path = Path(c.pregrasps).expanduser()
+        elif library:
+            path = operate_pregrasp_path(object_name)
+        elif c.objects or self.object_asset is None:
+            raise PregraspError(f"task.object {object_name!r}: pre-grasps of a URDF among task.objects are not "
+                                "searched on first use; write them with dexmots-pregrasp --task operate --object "
+                                f"{object_name} and pass task.pregrasps=<file>, or start with task.initial=open")
+        else:  # searched once, kept beside the scene
+            options = urdf_load_options(c.urdf, c.joint, object_name)
+            path = cached_pregrasps(scene, self.object_asset, scene_dir(object_name, options), self.contact_params,
+                                    self.joint_name)
+            if path is None:  # none found: the open start (urdf_object's docstring)
+                return None
         name = self.object_asset.name if self.object_asset is not None else None
         if c.objects:  # one instance of several
             name = object_name if library else None
@@ -454,7 +475,8 @@ class OperateObjectEnv(DexEnv):
 def _build(config: OperateObjectConfig):
     if config.objects and config.variants > 1:
         raise ValueError("task.variants: size variants are drawn of task.object; with task.objects give 0")
-    return build_scene(config.object, config.objects, config.variants, config.variant_scale, config.variant_seed)
+    return build_scene(config.object, config.objects, config.variants, config.variant_scale, config.variant_seed,
+                       config.urdf, config.joint)
 
 
 register_task("operate", OperateObjectEnv, OperateObjectConfig)
