@@ -152,8 +152,32 @@ def test_reported_bad_algorithm_values_fail_before_any_work(tmp_path, algo, over
     assert not run_dir.exists()
 
 
+@pytest.mark.parametrize("algo", ALGOS)
+def test_a_key_no_config_declares_fails_before_any_work_naming_the_known_ones(tmp_path, algo):
+    """hydra's advice for an unknown key, ``+algo.<key>=...``, composes it silently: the trainer refuses it."""
+    run_dir = tmp_path / "run"
+    known = ", ".join(sorted(_algo_cfg(algo).algo))
+    with pytest.raises(ValueError, match=re.escape(f"algo.itrations: no such key in algo={algo} (a '+' adds none "
+                                                   f"either); its keys: {known}")):
+        train(_algo_cfg(algo, f"run_dir={run_dir}", "+algo.itrations=3"))
+    assert not run_dir.exists()
+
+
+@pytest.mark.parametrize("override, message", [
+    ("+algo.horizon=3", "algo.horizon: no such key in algo=sac"),  # another method's key
+    ("+eval.episode=3", "eval.episode: no such key in eval (a '+' adds none either); its keys: curve_episodes,"),
+    ("+budget.cpu=3", "budget.cpu: no such key in budget"),
+    ("+sed=3", "sed: no such key in the config"),
+])
+def test_unknown_keys_of_every_section_fail(tmp_path, override, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        train(_algo_cfg("sac", f"run_dir={tmp_path / 'run'}", override))
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize("override, key", [("algo.clip_epsilon=nan", "algo.clip_epsilon"),
-                                           ("task.ramp_steps=0", "task.ramp_steps")])
+                                           ("task.ramp_steps=0", "task.ramp_steps"),
+                                           ("+algo.clip_epsilom=0.1", "algo.clip_epsilom")])
 def test_cli_prints_one_line_naming_the_key(tmp_path, override, key):
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.run([sys.executable, "-m", "dexmots_rl.apps.train", "algo=ppo", f"run_dir={tmp_path / 'run'}",

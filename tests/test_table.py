@@ -174,6 +174,11 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     (["launcher=mpi"], "launcher must be one of"),
     (["paper_table.screw_claw.ppo=[47.4]"], "paper_table.screw_claw.ppo must be [mean, s.d.] in %"),
     (["+paper_table.nope={ppo:[1,2]}"], "paper_table: unknown task 'nope'"),
+    (["+seed=[0]"], "seed: no such key in the config (a '+' adds none either); its keys: action_ablation, budget,"),
+    (["+budget.cpu=5"], "budget.cpu: no such key in budget"),
+    (['method_overrides.ppo=["+algo.iteratons=1"]'], "run screw_claw/ppo/vi/seed0: algo.iteratons: no such key in "
+                                                     "algo=ppo (a '+' adds none either); its keys: activation,"),
+    (['run_overrides=["+evaluation.episodes=3"]'], "evaluation: no such key in the config"),
 ])
 def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, message):
     monkeypatch.setattr(table, "train_job", lambda cfg: pytest.fail("a bad spec must not launch anything"))
@@ -181,6 +186,15 @@ def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, mes
         table.run_table(_table_cfg(tmp_path, *overrides))
     assert message in str(info.value)
     assert not (tmp_path / "sweep" / "runs").exists()
+
+
+@pytest.mark.parametrize("preset", sorted(p.stem for p in (CONFIG_DIR / "table" / "preset").glob("*.yaml")))
+def test_every_preset_sets_only_declared_keys(tmp_path, preset):
+    from dexmots_rl.apps.config_keys import declared_config, unknown_keys
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR / "table"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"preset={preset}"])
+    assert unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), table.FREE_SECTIONS) == []
 
 
 def _finished_sweep(tmp_path, monkeypatch, finish, *overrides) -> None:

@@ -69,6 +69,23 @@ def train_job(cfg) -> dict:
         return run(cfg)
 
 
+#: dexmots-table's sections whose keys are the user's (task, method and launcher field names)
+FREE_SECTIONS = ("method_catalog", "task_labels", "task_budgets", "task_overrides", "method_overrides",
+                 "paper_table", "launcher_params")
+
+
+def _refuse_undeclared_keys(cfg) -> None:
+    """A key configs/table/config.yaml does not declare (a ``+<typo>=...``) fails before any run."""
+    from .config_keys import declared_config, refuse_unknown_keys
+    from .table_spec import SweepSpecError
+    from .train import CONFIG_DIR
+
+    try:
+        refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), free=FREE_SECTIONS)
+    except ValueError as e:
+        raise SweepSpecError(str(e)) from None
+
+
 def _threads(cfg, cores: int) -> int | None:
     from .table_spec import SweepSpecError
 
@@ -141,10 +158,12 @@ def _check_composes(loader, master, runs) -> None:
     """Validate each run's dexmots-train config now, so a bad value fails before any run."""
     from ..algorithms.validation import validate_run_config
     from .table_spec import SweepSpecError
+    from .train import refuse_undeclared_keys
 
     for run in runs:
         try:
             composed = loader.load_sweep_config(master, list(run.overrides))
+            refuse_undeclared_keys(composed)
             validate_run_config(composed)
         except Exception as e:  # hydra's and the validator's errors name the key
             raise SweepSpecError(f"run {run.name}: {e}".splitlines()[0]) from None
@@ -295,6 +314,7 @@ def run_table(cfg) -> dict:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
+    _refuse_undeclared_keys(cfg)
     threads = _threads(cfg, cores)
     spec = sweep_spec(cfg, list_algorithms(), envs.list_tasks(),
                       {t: envs.task_config(t).action for t in envs.list_tasks()})

@@ -1,0 +1,66 @@
+"""Keys no config declares: hydra composes ``+group.key=value`` (the spelling its own error advises for a key
+it does not know) into the config without a word, so a typo would train to the end and be ignored. The console
+scripts compare what they were given with what their configs declare and refuse the first unknown key, naming
+the keys it could have been, before any work.
+
+Example:
+    >>> from omegaconf import OmegaConf
+    >>> given = OmegaConf.create({"seed": 0, "algo": {"name": "sac", "utd_ratio": 0.1, "utd_ration": 1.0}})
+    >>> known = OmegaConf.create({"seed": 0, "algo": {"name": "sac", "utd_ratio": 0.1}})
+    >>> try:
+    ...     refuse_unknown_keys(given, known)
+    ... except ValueError as e:
+    ...     print(e)
+    algo.utd_ration: no such key in algo (a '+' adds none either); its keys: name, utd_ratio
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from typing import Collection
+
+__all__ = ["declared_config", "refuse_unknown_keys", "unknown_keys"]
+
+
+def unknown_keys(given, known, free: Collection[str] = (), prefix: str = "") -> list[str]:
+    """Dotted keys of ``given`` absent from ``known`` (mappings, nested), not descending into the dotted keys
+    in ``free`` (sections whose keys are the user's: task names, launcher fields, ...)."""
+    out = []
+    for key in given:
+        path = f"{prefix}{key}"
+        if path in free or key == "hydra":
+            continue
+        if key not in known:
+            out.append(path)
+        elif isinstance(given[key], Mapping) and isinstance(known[key], Mapping):
+            out += unknown_keys(given[key], known[key], free, f"{path}.")
+    return out
+
+
+def refuse_unknown_keys(given, known, free: Collection[str] = (), section_names: Mapping[str, str] = {}) -> None:
+    """``ValueError`` naming the first key of ``given`` that ``known`` lacks and the keys of its section;
+    ``section_names``: a section's words in the message (e.g. ``{"algo": "algo (sac)"}``)."""
+    unknown = unknown_keys(given, known, free)
+    if not unknown:
+        return
+    section, _, _ = unknown[0].rpartition(".")
+    node = known
+    for part in filter(None, section.split(".")):
+        node = node[part]
+    keys = ", ".join(sorted(k for k in node if k != "hydra"))
+    where = section_names.get(section, section) or "the config"
+    raise ValueError(f"{unknown[0]}: no such key in {where} (a '+' adds none either); its keys: {keys}")
+
+
+@functools.lru_cache(maxsize=None)
+def declared_config(config_dir: str, overrides: tuple[str, ...] = ()):
+    """The config ``config.yaml`` of ``config_dir`` composes with the group choices ``overrides`` (e.g.
+    ``("task=stapler", "algo=sac")``, recipes included), as the package declares it, no command line applied
+    (hydra 1.3's config loader, as dexmots-table's launch uses)."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+    from hydra.types import RunMode
+
+    loader = ConfigLoaderImpl(config_search_path=create_config_search_path(config_dir))
+    return loader.load_configuration("config", list(overrides), run_mode=RunMode.RUN)
