@@ -35,3 +35,23 @@ def test_dexmots_plan_writes_a_tool_tasks_plan(tmp_path):
           str(out)])
     env = make_env("drawer", num_envs=2, references=str(out), seed=0, raw=True, differentiable=False)
     assert env.reference_bank.batch_size == (1, 4)
+
+
+@pytest.mark.parametrize("task, goal", [("stapler", 5.0), ("drawer", -0.01)])
+def test_dexmots_plan_refuses_a_goal_outside_the_joints_range_naming_it(tmp_path, task, goal):
+    from dexmots_rl.apps.plan import main
+    from dexmots_rl.assets.objects import load_object
+    from dexmots_rl.envs import task_config, task_scene
+
+    config, tree = task_config(task), task_scene(task).tree
+    lo, hi = tree.joint_range[tree.joint_names.index(config.joint or load_object(config.object).operated_joint)]
+    out = tmp_path / "plan.pt"
+    with pytest.raises(SystemExit, match=rf"^dexmots-plan: --goal {goal:g} is outside the range of joint "
+                                         rf"'\w+': \[{lo:g}, {hi:g}\] (rad|m) \({task}'s operated joint\)$"):
+        main(["--task", task, "--goal", str(goal), "--steps", "2", "--iterations", "1", "--out", str(out)])
+    assert not out.exists()
+
+
+def test_a_start_outside_the_range_is_named():
+    with pytest.raises(ValueError, match=r"start 0.5 is outside the range of joint 'drawer': \[0, 0.\d+\] m"):
+        optimize_joint_torques("drawer_a", "drawer", 0.5, 0.05, steps=2, iterations=1, progress=False)

@@ -106,6 +106,8 @@ def _plan(args) -> None:
         except ValueError as e:
             raise SystemExit(f"dexmots-plan: {e}") from None
         t0 = time.perf_counter()
+        log.info("dexmots-plan: %d iterations of a %d-step plan on %s (a progress bar on a terminal)",
+                 args.iterations, args.steps, args.task)
         if getattr(scene, "tree", None) is not None:  # an articulated object: its operated joint
             result = _plan_joint(args, scene)
         else:
@@ -152,8 +154,11 @@ def _plan_joint(args, scene):
             raise SystemExit(f"dexmots-plan: --{name} gives {len(values)} values; expected 1 or {n}")
     params = {f"{joint}/{name}": torch.tensor(values, dtype=torch.float32).expand(n)
               for name, values in (("damping", args.damping), ("friction", args.friction)) if values}
-    return optimize_joint_torques(scene, joint, torch.tensor(start).expand(n), torch.tensor(args.goal).expand(n),
-                                  args.steps, iterations=args.iterations, lr=args.lr, params=params)
+    try:
+        return optimize_joint_torques(scene, joint, torch.tensor(start).expand(n), torch.tensor(args.goal).expand(n),
+                                      args.steps, iterations=args.iterations, lr=args.lr, params=params)
+    except ValueError as e:  # a start or goal outside the joint's range, named
+        raise SystemExit(f"dexmots-plan: --{e} ({args.task}'s operated joint)") from None
 
 
 def _task_lr(task: str) -> float:

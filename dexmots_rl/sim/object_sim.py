@@ -94,6 +94,7 @@ class ObjectSimulator:
         self.model = self._make_model(np.asarray(gravity, dtype=np.float64))
         # [N] int32: the variant each world simulates (see the module docstring)
         self.variant = torch.zeros(num_worlds, dtype=torch.int32, device=self.torch_device)
+        self._arrays = _ArrayPool(self.device)  # the substeps' arrays, reused once their step is done with
 
     @property
     def nq(self) -> int:
@@ -192,7 +193,7 @@ class ObjectSimulator:
         states = [(wq, wqd)]
 
         def new(dtype, count):
-            return wp.zeros((n, count), dtype=dtype, device=self.device, requires_grad=grad)
+            return self._arrays.take(dtype, (n, count), grad)
 
         for _ in range(self.substeps):
             # every substep its own arrays: a taped launch must not overwrite what an earlier one read
@@ -213,6 +214,35 @@ class ObjectSimulator:
         return wq, wqd, wpar, wext, states[-1]
 
 
+class _ArrayPool:
+    """Warp arrays handed out zeroed and taken back for reuse: building a warp array costs more CPU time than
+    the launch that fills it (a joint plan's forward pass spent two thirds of its time creating them)."""
+
+    def __init__(self, device):
+        self.device, self.free, self.lent = device, {}, []
+
+    def take(self, dtype, shape: tuple, grad: bool):
+        spare = self.free.get((dtype, shape, grad))
+        if spare:
+            a = spare.pop()
+            a.zero_()
+            if grad:
+                a.grad.zero_()
+        else:
+            a = wp.zeros(shape, dtype=dtype, device=self.device, requires_grad=grad)
+        self.lent.append(a)
+        return a
+
+    def lent_since(self, mark: int) -> list:
+        """The arrays taken since ``len(self.lent)`` was ``mark`` (one step's), no longer tracked."""
+        out, self.lent = self.lent[mark:], self.lent[:mark]
+        return out
+
+    def give_back(self, arrays) -> None:
+        for a in arrays:
+            self.free.setdefault((a.dtype, a.shape, a.requires_grad), []).append(a)
+
+
 class ObjectStep(torch.autograd.Function):
     """One env step of an :class:`ObjectSimulator`; inputs ``sim, q, qd, params, ext``, outputs ``(q, qd)``."""
 
@@ -221,6 +251,7 @@ class ObjectStep(torch.autograd.Function):
         inputs = [t.detach().to(sim.dtype).clone() for t in (q, qd, params, ext)]
         grad = any(ctx.needs_input_grad[1:])
         ctx.sim, ctx.tape = sim, None
+        mark = len(sim._arrays.lent)
         if grad:
             tape = wp.Tape()
             with tape:
@@ -229,7 +260,13 @@ class ObjectStep(torch.autograd.Function):
         else:
             arrays = sim._run(*inputs, grad=False)
         q_out, qd_out = arrays[-1]
-        return wp.to_torch(q_out).clone(), wp.to_torch(qd_out).clone()
+        out = wp.to_torch(q_out).clone(), wp.to_torch(qd_out).clone()
+        pooled = sim._arrays.lent_since(mark)
+        if grad:  # back to the pool after the backward pass, which replays them
+            ctx.pooled = pooled
+        else:
+            sim._arrays.give_back(pooled)
+        return out
 
     @staticmethod
     def backward(ctx, grad_q, grad_qd):
@@ -242,6 +279,7 @@ class ObjectStep(torch.autograd.Function):
         ctx.tape.backward()
         grads = [wp.to_torch(a.grad).clone() for a in (wq, wqd, wpar, wext)]
         ctx.tape.zero()
-        ctx.tape, ctx.arrays = None, None
+        ctx.sim._arrays.give_back(ctx.pooled)
+        ctx.tape, ctx.arrays, ctx.pooled = None, None, None
         return (None, *[g if need else None for g, need in zip(grads, ctx.needs_input_grad[1:])])
 

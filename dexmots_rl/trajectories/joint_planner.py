@@ -75,6 +75,7 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
     j = tree.joint_names.index(joint)
     start = _as_batch("start", start, 1, dtype)
     goal = _as_batch("goal", goal, 1, dtype)
+    _check_in_range(tree, j, start=start, goal=goal)
     start, goal = (t.contiguous() for t in torch.broadcast_tensors(start, goal))
     n, body = start.shape[0], j + 1
     sim = ObjectSimulator(tree, n, dtype=dtype, substeps=substeps)
@@ -93,7 +94,7 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
         rot = rot @ tree.offset_rot[k]
     axis = torch.as_tensor(rot @ tree.joint_axis[j], dtype=dtype)
     parent = int(tree.parent[body])
-    slide = int(tree.joint_kind[j]) == 1
+    slide = _is_slide(tree, j)
     q0, qd0 = sim.initial_state()
     q0[:, j] = start[:, 0]
     reference = interpolate_reference(start, goal, steps, free_body=False)
@@ -155,6 +156,26 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
                                           torch.zeros(rows, 6, dtype=dtype), dt=sim.dt,
                                           joint_q=joint_q.contiguous(), joint_torque=torque.contiguous()))
     return PlanResult(plans, history, initial, final, reference.detach())
+
+
+def _is_slide(tree, j: int) -> bool:
+    from ..sim.object_model import SLIDE
+
+    return int(tree.joint_kind[j]) == SLIDE
+
+
+def _check_in_range(tree, j: int, **positions: torch.Tensor) -> None:
+    """``ValueError`` naming the first of ``positions`` outside joint ``j``'s range (a range of [0, 0] is
+    MuJoCo's unlimited joint): no force can hold a joint past its stops."""
+    lo, hi = (float(v) for v in tree.joint_range[j])
+    if lo >= hi:
+        return
+    unit = "m" if _is_slide(tree, j) else "rad"
+    for name, values in positions.items():
+        outside = [float(v) for v in values.flatten() if not lo <= float(v) <= hi]
+        if outside:
+            raise ValueError(f"{name} {outside[0]:g} is outside the range of joint {tree.joint_names[j]!r}: "
+                             f"[{lo:g}, {hi:g}] {unit}")
 
 
 def _quat(rot) -> np.ndarray:
