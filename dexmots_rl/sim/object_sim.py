@@ -219,7 +219,7 @@ class _ArrayPool:
     the launch that fills it (a joint plan's forward pass spent two thirds of its time creating them)."""
 
     def __init__(self, device):
-        self.device, self.free, self.lent = device, {}, []
+        self.device, self.free, self.in_use = device, {}, []
 
     def take(self, dtype, shape: tuple, grad: bool):
         spare = self.free.get((dtype, shape, grad))
@@ -230,12 +230,12 @@ class _ArrayPool:
                 a.grad.zero_()
         else:
             a = wp.zeros(shape, dtype=dtype, device=self.device, requires_grad=grad)
-        self.lent.append(a)
+        self.in_use.append(a)
         return a
 
-    def lent_since(self, mark: int) -> list:
-        """The arrays taken since ``len(self.lent)`` was ``mark`` (one step's), no longer tracked."""
-        out, self.lent = self.lent[mark:], self.lent[:mark]
+    def taken_since(self, mark: int) -> list:
+        """The arrays taken since ``len(self.in_use)`` was ``mark`` (one step's), no longer tracked."""
+        out, self.in_use = self.in_use[mark:], self.in_use[:mark]
         return out
 
     def give_back(self, arrays) -> None:
@@ -251,7 +251,7 @@ class ObjectStep(torch.autograd.Function):
         inputs = [t.detach().to(sim.dtype).clone() for t in (q, qd, params, ext)]
         grad = any(ctx.needs_input_grad[1:])
         ctx.sim, ctx.tape = sim, None
-        mark = len(sim._arrays.lent)
+        mark = len(sim._arrays.in_use)
         if grad:
             tape = wp.Tape()
             with tape:
@@ -261,7 +261,7 @@ class ObjectStep(torch.autograd.Function):
             arrays = sim._run(*inputs, grad=False)
         q_out, qd_out = arrays[-1]
         out = wp.to_torch(q_out).clone(), wp.to_torch(qd_out).clone()
-        pooled = sim._arrays.lent_since(mark)
+        pooled = sim._arrays.taken_since(mark)
         if grad:  # back to the pool after the backward pass, which replays them
             ctx.pooled = pooled
         else:
