@@ -144,7 +144,7 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     launched.clear()
     result = table.run_table(_table_cfg(tmp_path))
     assert sorted(launched) == [("screw_claw", "ahac", 1, "vi", 1), ("screw_claw", "ppo", 0, "vi", 1)]
-    assert (result["runs"], result["skipped"], result["launched"], result["unfinished"]) == (4, 2, 2, 0)
+    assert (result["runs"], result["skipped"], result["launched"], result["unfinished"]) == (4, 2, 2, [])
     rows = read_csv(tmp_path / "sweep" / "runs.csv")
     assert [(r["method"], r["seed"], r["status"]) for r in rows] == [
         ("dexmots", 0, "finished"), ("dexmots", 1, "finished"), ("ppo", 0, "finished"), ("ppo", 1, "finished")]
@@ -154,8 +154,14 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     # report_only: the table of what is finished, launching nothing
     (runs / "ppo" / "vi" / "seed1" / "metrics.json").unlink()
     result = table.run_table(_table_cfg(tmp_path, "report_only=true"))
-    assert launched == [] and (result["launched"], result["unfinished"]) == (0, 1)
+    assert launched == [] and (result["launched"], result["unfinished"]) == (0, ["screw_claw/ppo/vi/seed1"])
     assert "1 of 4 runs not finished: screw_claw/ppo/vi/seed1" in result["table"]
+    # the exit names the missing runs and the command that runs them: the same one without report_only
+    command_line = ["preset=suite", "report_only=true", "seeds=[0,1]"]
+    assert table.closing_message(result, True, command_line) == (
+        "dexmots-table: 1 of 4 runs not finished (screw_claw/ppo/vi/seed1); report_only=true launched none; run "
+        "them (finished runs are skipped) with: dexmots-table preset=suite 'seeds=[0,1]'")
+    assert table.closing_message(table.run_table(_table_cfg(tmp_path)), False, []) is None  # it ran the missing one
 
 
 @pytest.mark.parametrize("overrides, message", [
@@ -190,11 +196,11 @@ def test_a_bad_spec_fails_naming_the_field(tmp_path, monkeypatch, overrides, mes
 
 @pytest.mark.parametrize("preset", sorted(p.stem for p in (CONFIG_DIR / "table" / "preset").glob("*.yaml")))
 def test_every_preset_sets_only_declared_keys(tmp_path, preset):
-    from dexmots_rl.apps.config_keys import declared_config, unknown_keys
+    from dexmots_rl.apps.config_keys import TABLE_FREE_SECTIONS, declared_config, unknown_keys
 
     with initialize_config_dir(config_dir=str(CONFIG_DIR / "table"), version_base="1.3"):
         cfg = compose("config", overrides=[f"preset={preset}"])
-    assert unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), table.FREE_SECTIONS) == []
+    assert unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), TABLE_FREE_SECTIONS) == []
 
 
 def _finished_sweep(tmp_path, monkeypatch, finish, *overrides) -> None:
@@ -257,14 +263,14 @@ def test_a_tiny_real_sweep_end_to_end(tmp_path):
     smoke = ('method_overrides.ppo=["algo.total_frames=24","algo.frames_per_batch=12","algo.minibatch_size=6",'
              '"algo.hidden=[8]"]')
     result = table.run_table(_table_cfg(tmp_path, *spec, smoke))
-    assert (result["launched"], result["unfinished"]) == (1, 0)
+    assert (result["launched"], result["unfinished"]) == (1, [])
     row = read_csv(tmp_path / "sweep" / "runs.csv")[0]
     assert row["status"] == "finished" and row["env_steps"] == 24 and row["stopped_by"] == "schedule"
     assert table.run_table(_table_cfg(tmp_path, *spec, smoke))["launched"] == 0  # the same spec: finished
     # a longer run in the same sweep directory does not reuse the 2-iteration one: the real trainer's config.yaml
     longer = smoke.replace("total_frames=24", "total_frames=36")
     result = table.run_table(_table_cfg(tmp_path, *spec, longer))
-    assert (result["launched"], result["skipped"], result["unfinished"]) == (1, 0, 0)
+    assert (result["launched"], result["skipped"], result["unfinished"]) == (1, 0, [])
     assert read_csv(tmp_path / "sweep" / "runs.csv")[0]["env_steps"] == 36
 
 

@@ -20,7 +20,12 @@ import functools
 from collections.abc import Mapping
 from typing import Collection
 
-__all__ = ["declared_config", "refuse_unknown_keys", "unknown_keys"]
+__all__ = ["TABLE_FREE_SECTIONS", "declared_config", "refuse_undeclared_table_keys", "refuse_undeclared_train_keys",
+           "refuse_unknown_keys", "unknown_keys"]
+
+#: dexmots-table's sections whose keys are the user's (task, method and launcher field names)
+TABLE_FREE_SECTIONS = ("method_catalog", "task_labels", "task_budgets", "task_overrides", "method_overrides",
+                       "paper_table", "launcher_params")
 
 
 def unknown_keys(given, known, free: Collection[str] = (), prefix: str = "") -> list[str]:
@@ -64,3 +69,25 @@ def declared_config(config_dir: str, overrides: tuple[str, ...] = ()):
 
     loader = ConfigLoaderImpl(config_search_path=create_config_search_path(config_dir))
     return loader.load_configuration("config", list(overrides), run_mode=RunMode.RUN)
+
+
+def refuse_undeclared_train_keys(cfg) -> None:
+    """``ValueError`` naming a key of ``cfg`` that dexmots-train's configs do not declare for its task and
+    method (a ``+algo.<typo>=...``); ``task.*`` is its typed config's to check."""
+    from ..algorithms.registry import algorithm
+    from .train import CONFIG_DIR
+
+    name = cfg.algo.name
+    declared = declared_config(str(CONFIG_DIR), (f"task={cfg.task.name}", f"algo={algorithm(name).config}"))
+    refuse_unknown_keys(cfg, declared, free=("task",), section_names={"algo": f"algo={name}"})
+
+
+def refuse_undeclared_table_keys(cfg) -> None:
+    """:class:`.table_spec.SweepSpecError` naming a key configs/table/config.yaml does not declare."""
+    from .table_spec import SweepSpecError
+    from .train import CONFIG_DIR
+
+    try:
+        refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), free=TABLE_FREE_SECTIONS)
+    except ValueError as e:
+        raise SweepSpecError(str(e)) from None

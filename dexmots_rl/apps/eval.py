@@ -8,6 +8,8 @@
 ``--objects`` evaluates a policy of an articulated-object task on other objects of the same topology:
 ``train`` / ``heldout`` (the class's library split, :func:`dexmots_rl.assets.objects.object_split`) or names
 separated by commas; the result says which (``objects``) and breaks success down by object (``success_by_variant``).
+Each object set has its own file in the run directory, so one does not replace another: ``eval.json`` (the run's
+own objects), ``eval_train.json``, ``eval_heldout.json``, ``eval_<name>+<name>.json`` (:func:`default_out`).
 
 The episodes are the checkpoint's task (:func:`dexmots_rl.algorithms.evaluation.evaluate_policy`).
 """
@@ -16,13 +18,25 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 from pathlib import Path
 
 from ..atomic import atomic_write_json, dumps_json
 from ._cli import os_errors_as_one_line
 
-__all__ = ["main"]
+__all__ = ["default_out", "main"]
+
+
+def default_out(checkpoint: str, objects: str | None) -> Path:
+    """Where the result goes without ``--out``: the run directory's ``eval.json``, or with ``--objects``
+    ``eval_<objects>.json`` (names joined by ``+``; any character a file name should not hold becomes ``_``)."""
+    src = Path(checkpoint)
+    run_dir = src if src.is_dir() else src.parent.parent
+    if objects is None:
+        return run_dir / "eval.json"
+    names = "+".join(re.sub(r"[^A-Za-z0-9_.-]", "_", n.strip()) for n in objects.split(","))
+    return run_dir / f"eval_{names}.json"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -31,7 +45,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--device", default="cpu")
-    p.add_argument("--out", default=None, help="JSON file (default: <run dir>/eval.json)")
+    p.add_argument("--out", default=None,
+                   help="JSON file (default: <run dir>/eval.json; with --objects, eval_<objects>.json)")
     p.add_argument("--record", default=None, help="also write the first --record-worlds episodes to this MCAP file")
     p.add_argument("--record-worlds", type=int, default=8)
     p.add_argument("--objects", default=None,
@@ -60,8 +75,7 @@ def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None
                                      record=args.record, record_worlds=args.record_worlds)}
     except (CheckpointError, ValueError) as e:
         raise SystemExit(f"dexmots-eval: {e}") from None
-    src = Path(args.checkpoint)
-    out = Path(args.out) if args.out else (src if src.is_dir() else src.parent.parent) / "eval.json"
+    out = Path(args.out) if args.out else default_out(args.checkpoint, args.objects)
     atomic_write_json(out, result)
     print(dumps_json(result))
 

@@ -43,12 +43,13 @@ import contextlib
 import importlib
 import logging
 import os
+import shlex
 import sys
 import threading
 from pathlib import Path
 
 
-__all__ = ["main", "run_table", "train_job"]
+__all__ = ["closing_message", "main", "run_table", "train_job"]
 
 log = logging.getLogger(__name__)
 
@@ -67,23 +68,6 @@ def train_job(cfg) -> dict:
 
     with contextlib.redirect_stdout(sys.stderr):  # warp reports kernel compilation with print()
         return run(cfg)
-
-
-#: dexmots-table's sections whose keys are the user's (task, method and launcher field names)
-FREE_SECTIONS = ("method_catalog", "task_labels", "task_budgets", "task_overrides", "method_overrides",
-                 "paper_table", "launcher_params")
-
-
-def _refuse_undeclared_keys(cfg) -> None:
-    """A key configs/table/config.yaml does not declare (a ``+<typo>=...``) fails before any run."""
-    from .config_keys import declared_config, refuse_unknown_keys
-    from .table_spec import SweepSpecError
-    from .train import CONFIG_DIR
-
-    try:
-        refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), free=FREE_SECTIONS)
-    except ValueError as e:
-        raise SweepSpecError(str(e)) from None
 
 
 def _threads(cfg, cores: int) -> int | None:
@@ -158,12 +142,12 @@ def _check_composes(loader, master, runs) -> None:
     """Validate each run's dexmots-train config now, so a bad value fails before any run."""
     from ..algorithms.validation import validate_run_config
     from .table_spec import SweepSpecError
-    from .train import refuse_undeclared_keys
+    from .config_keys import refuse_undeclared_train_keys
 
     for run in runs:
         try:
             composed = loader.load_sweep_config(master, list(run.overrides))
-            refuse_undeclared_keys(composed)
+            refuse_undeclared_train_keys(composed)
             validate_run_config(composed)
         except Exception as e:  # hydra's and the validator's errors name the key
             raise SweepSpecError(f"run {run.name}: {e}".splitlines()[0]) from None
@@ -308,13 +292,14 @@ def run_table(cfg) -> dict:
     from .. import envs
     from .table_writer import run_row, write_csv
     from ..algorithms.registry import list_algorithms
+    from .config_keys import refuse_undeclared_table_keys
     from .table_spec import finished_metrics, replaced_runs, sweep_spec
 
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    _refuse_undeclared_keys(cfg)
+    refuse_undeclared_table_keys(cfg)
     threads = _threads(cfg, cores)
     spec = sweep_spec(cfg, list_algorithms(), envs.list_tasks(),
                       {t: envs.task_config(t).action for t in envs.list_tasks()})
@@ -346,12 +331,30 @@ def run_table(cfg) -> dict:
     launched = 0 if cfg.get("report_only") else len(pending)
     return {"sweep_dir": str(spec.sweep_dir), "runs": len(runs), "launched": launched,
             "skipped": len(runs) - len(pending), "failed": sorted(failures), "interrupted": interrupted,
-            "unfinished": sum(r["status"] != "finished" for r in rows), "table": report}
+            "unfinished": [run.name for run, r in zip(runs, rows) if r["status"] != "finished"], "table": report}
+
+
+def closing_message(result: dict, report_only: bool, overrides: list[str]) -> str | None:
+    """What dexmots-table exits with when the sweep is not complete (None: it is), with the command that
+    completes it; ``overrides``: the command line's."""
+    if result["interrupted"]:
+        return "dexmots-table: interrupted; rerun the same command to continue (finished runs are skipped)"
+    missing = result["unfinished"]
+    if not missing:
+        return None
+    shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+    if report_only:
+        command = shlex.join(["dexmots-table", *(o for o in overrides if o.lstrip("+").split("=")[0] != "report_only")])
+        return (f"dexmots-table: {len(missing)} of {result['runs']} runs not finished ({shown}); report_only=true "
+                f"launched none; run them (finished runs are skipped) with: {command}")
+    return (f"dexmots-table: {len(missing)} runs did not finish ({shown}; {len(result['failed'])} raised, table.md "
+            "says why); rerun the same command to retry them")
 
 
 def main() -> None:
     """Console entry point."""
     import hydra
+    from hydra.core.hydra_config import HydraConfig
     from omegaconf import DictConfig
 
     importlib.import_module("dexmots_rl.envs")  # registers the tasks' configs with hydra
@@ -370,12 +373,9 @@ def main() -> None:
         print(result["table"])
         print(f"dexmots-table: {result['runs']} runs ({result['skipped']} already finished, {result['launched']} "
               f"launched); results in {result['sweep_dir']} (table.md, runs.csv, *.png)", file=sys.stderr)
-        if result["interrupted"]:
-            raise SystemExit("dexmots-table: interrupted; rerun the same command to continue (finished runs are "
-                             "skipped)")
-        if result["unfinished"]:
-            raise SystemExit(f"dexmots-table: {result['unfinished']} runs did not finish ({len(result['failed'])} "
-                             "raised; table.md lists them); rerun the same command to retry them")
+        message = closing_message(result, bool(cfg.report_only), list(HydraConfig.get().overrides.task))
+        if message:
+            raise SystemExit(message)
 
     _app()
 
