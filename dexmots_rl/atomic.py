@@ -27,10 +27,15 @@ log = logging.getLogger(__name__)
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) -> None:
-    """Call ``write(f)`` on a binary temp file in ``path``'s directory and move it over ``path``."""
+    """Call ``write(f)`` on a binary temp file in ``path``'s directory and move it over ``path``. An
+    ``OSError`` (a full disk, a read-only or missing directory) leaves ``path`` as it was, no temp file
+    behind, and names ``path``, not the temp file the user never asked for."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as e:
+        raise _naming(e, path) from None
     try:
         # mkstemp creates 0600; a plain open() would give 0666 & ~umask, which is what users expect of
         # checkpoints and plans they share
@@ -40,9 +45,11 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) 
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise _naming(e, path) from None
         raise
     # persist the rename itself; not possible on every platform, so best effort
     try:
@@ -57,11 +64,45 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], object]) 
         os.close(dir_fd)
 
 
+def _naming(error: OSError, path: Path) -> OSError:
+    """``error`` about ``path`` (the same type: ``PermissionError``, ...), not about the temp file."""
+    if error.errno is None:  # no system error to restate (a message of its own)
+        return error
+    return OSError(error.errno, error.strerror, str(path))
+
+
+class _WriteErrors:
+    """A binary file whose ``write`` remembers the ``OSError`` it raised: torch's zip writer turns a failed
+    write (a full disk) into a ``RuntimeError`` about stream positions when it closes the archive."""
+
+    def __init__(self, f: IO[bytes]):
+        self.f, self.error = f, None
+
+    def write(self, data) -> int:
+        try:
+            return self.f.write(data)
+        except OSError as e:
+            self.error = e
+            raise
+
+    def flush(self) -> None:
+        self.f.flush()
+
+
 def atomic_torch_save(obj, path: str | os.PathLike) -> None:
-    """``torch.save(obj)`` to ``path`` atomically."""
+    """``torch.save(obj)`` to ``path`` atomically; a failed write is its ``OSError`` (see :func:`atomic_write`)."""
     import torch
 
-    atomic_write(path, lambda f: torch.save(obj, f))
+    def save(f: IO[bytes]) -> None:
+        guarded = _WriteErrors(f)
+        try:
+            torch.save(obj, guarded)
+        except RuntimeError:
+            if guarded.error is None:
+                raise
+            raise guarded.error from None
+
+    atomic_write(path, save)
 
 
 def _umask() -> int:

@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["CHECKSUM_KEY", "payload_digest", "with_checksum", "checksum_problem"]
+__all__ = ["CHECKSUM_KEY", "load_failure", "payload_digest", "with_checksum", "checksum_problem"]
 
 CHECKSUM_KEY = "sha256"
 
@@ -70,3 +70,14 @@ def checksum_problem(payload: Mapping[str, Any]) -> str | None:
     if stored != actual:
         return f"is corrupt: {CHECKSUM_KEY} checksum mismatch (stored {stored[:12]}..., contents hash to {actual[:12]}...)"
     return None
+
+
+def load_failure(err: BaseException) -> str:
+    """One line saying why ``torch.load`` could not read a file: the exception's type and its message's first
+    sentence, at most 160 characters. On bytes that are no archive at all torch answers with paragraphs of advice
+    on loading untrusted files with ``weights_only=False``, which is not what the user needs to hear."""
+    lines = str(err).strip().splitlines()
+    first = lines[0].split(". ")[0] if lines else ""  # its first sentence
+    if first.startswith("Weights only load failed"):
+        first = "not a torch file of tensors"
+    return f"{type(err).__name__}: {first[:160]}"

@@ -127,3 +127,53 @@ def test_blown_up_world_is_reset_and_counted(raw_env, index, value):
     again.set("action", torch.zeros(N, 4))
     assert out["info", "sim_failures"].squeeze(-1).tolist() == [0, 1, 0]
     assert raw_env.step(again)["next", "info", "sim_failures"].squeeze(-1).tolist() == [0, 2, 0]
+
+
+def test_numpy_integers_are_whole_numbers():
+    import numpy as np
+
+    env = make_env("screw_claw", num_envs=np.int64(2), seed=np.int64(3), raw=True)
+    assert env.num_envs == 2 and type(env.num_envs) is int
+
+
+@pytest.mark.parametrize("seed", ["abc", 1.7, [1]])
+def test_a_seed_that_is_not_an_integer_is_named(seed):
+    with pytest.raises(ValueError, match=r"^seed must be an integer, got "):
+        make_env("screw_claw", num_envs=1, seed=seed, raw=True)
+
+
+@pytest.mark.parametrize("dt", [0.5, 1e-9])
+def test_a_plan_of_another_step_is_refused_naming_both(tmp_path, dt):
+    from dexmots_rl.trajectories import PoseWrenchTrajectory
+
+    steps = 4
+    plan = PoseWrenchTrajectory(torch.zeros(steps, 3), torch.tensor([[1.0, 0, 0, 0]] * steps), torch.zeros(steps, 6),
+                                dt=dt, joint_q=torch.zeros(steps, 1), joint_torque=torch.zeros(steps, 1))
+    plan.save(tmp_path / "plan.pt")
+    with pytest.raises(ValueError, match=rf"plan\.pt was planned with dt {dt:.6g} s, the env steps dt 0\.0166667 s"):
+        make_env("screw_claw", num_envs=1, references=str(tmp_path / "plan.pt"), raw=True)
+
+
+def test_random_bytes_for_a_checkpoint_are_one_line_naming_the_file(tmp_path):
+    import os
+
+    from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
+    from dexmots_rl.apps.eval import main as eval_main
+
+    path = tmp_path / "last.pt"
+    path.write_bytes(os.urandom(4096))
+    with pytest.raises(CheckpointError) as err:
+        load_checkpoint(path)
+    assert str(path) in str(err.value) and "\n" not in str(err.value) and "weights_only" not in str(err.value)
+    with pytest.raises(SystemExit) as cli:
+        eval_main([str(path), "--episodes", "1"])
+    assert str(cli.value.code).startswith(f"dexmots-eval: checkpoint {path} ") and "\n" not in str(cli.value.code)
+
+
+@pytest.mark.parametrize("objects, named", [(" , ", "names no object"), ("stapler_a,drawer_a", "'drawer_a'"),
+                                            (["scissors_a", "stapler_a"], "'stapler_a'")])
+def test_task_objects_that_name_nothing_or_mix_topologies_are_one_error_naming_the_field(objects, named):
+    with pytest.raises(ValueError) as err:
+        make_env("stapler", num_envs=1, objects=objects, raw=True)
+    msg = str(err.value)
+    assert msg.startswith("task.objects") and named in msg and "scene.xml" not in msg and "\n" not in msg

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import builtins
 import errno
+import io
 import os
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from hydra import compose, initialize_config_dir
 
 from dexmots_rl.apps import bench, rollout
 from dexmots_rl.apps import train as train_app
+from dexmots_rl.apps._cli import os_errors_as_one_line
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["algo=shac", "task.num_envs=2", "algo.horizon=4", "algo.iterations=1", "algo.hidden=[8]",
@@ -92,3 +94,122 @@ def test_bench_train_on_a_full_disk_is_one_line(full_disk):
     with pytest.raises(SystemExit) as err:
         bench.main(["train", "--algo", "shac", "--run-dir", str(full_disk / "run"), *SMALL[1:]])
     assert "no space left on device" in _one_line(err, "dexmots-bench")
+
+
+@pytest.fixture
+def full_after(monkeypatch, tmp_path):
+    """``full_after(n)``: files opened through ``os.fdopen`` (every atomic write) under ``tmp_path / "full"``
+    take ``n`` bytes in all, then each write fails with ENOSPC, as a disk filling up mid-write."""
+    full, real_fdopen = tmp_path / "full", os.fdopen
+    left = {"bytes": 0}
+
+    class FillingFile(io.BufferedWriter):
+        def write(self, data):
+            left["bytes"] -= len(data)
+            if left["bytes"] < 0:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return super().write(data)
+
+    def fdopen(fd, mode="r", *args, **kwargs):
+        if "w" in mode and Path(os.readlink(f"/proc/self/fd/{fd}")).is_relative_to(full):
+            return FillingFile(io.FileIO(fd, "w"))
+        return real_fdopen(fd, mode, *args, **kwargs)
+
+    def set_room(n: int) -> Path:
+        left["bytes"] = n
+        monkeypatch.setattr(os, "fdopen", fdopen)
+        return full
+
+    return set_room
+
+
+def test_a_disk_filling_up_mid_checkpoint_is_one_line_and_keeps_the_last_checkpoint(full_after, monkeypatch):
+    from dexmots_rl.algorithms.checkpoint import load_checkpoint
+
+    run = full_after(10**9) / "run"  # room for the first iteration's checkpoint
+    first = [o for o in SMALL if not o.startswith("algo.iterations")] + ["algo.iterations=2", "stop_after=1"]
+    monkeypatch.setattr(sys, "argv", ["dexmots-train", *first, f"run_dir={run}"])
+    train_app.main()
+    full_after(20_000)  # the next checkpoint (some 100 kB) does not fit: torch's zip writer fails mid-archive
+    monkeypatch.setattr(sys, "argv", ["dexmots-train", f"resume={run}", "progress=false"])
+    with pytest.raises(SystemExit) as err:
+        train_app.main()
+    msg = _one_line(err, "dexmots-train")
+    assert "no space left on device" in msg and str(run / "checkpoints" / "last.pt") in msg
+    assert load_checkpoint(run / "checkpoints" / "last.pt")["iteration"] == 1  # the last good one stays
+    assert [p.name for p in (run / "checkpoints").iterdir()] == ["last.pt"]  # no temp file
+
+
+def _unwritable_dir(tmp_path: Path) -> Path:
+    """A directory nothing can be written under: read-only, or (as root, whom permissions do not stop) a path
+    under a regular file."""
+    folder = tmp_path / "read_only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        (folder / "probe").touch()
+    except PermissionError:
+        return folder
+    (folder / "probe").unlink()
+    folder.chmod(0o700)
+    (tmp_path / "a_file").write_text("")
+    return tmp_path / "a_file" / "dir"
+
+
+def test_eval_prints_its_result_when_it_cannot_write_it(tmp_path, capsys):
+    import json
+
+    from dexmots_rl.apps import eval as eval_app
+
+    run = tmp_path / "run"
+    with initialize_config_dir(config_dir=str(train_app.CONFIG_DIR), version_base="1.3"):
+        train_app.run(compose("config", overrides=[*SMALL, f"run_dir={run}"]))
+    capsys.readouterr()
+    out = _unwritable_dir(tmp_path) / "eval.json"
+    with pytest.raises(SystemExit) as err:
+        eval_app.main([str(run), "--episodes", "1", "--out", str(out)])
+    msg = _one_line(err, "dexmots-eval")
+    assert str(out) in msg and "--out" in msg and ".tmp" not in msg
+    assert json.loads(capsys.readouterr().out)["episodes"] == 1  # the result, printed all the same
+
+
+@pytest.mark.parametrize("cache", ["full", "unwritable", "a_file"])
+def test_an_unusable_scene_cache_is_one_error_naming_it_and_leaves_no_partial_scene(tmp_path, monkeypatch,
+                                                                                    full_after, cache):
+    from dexmots_rl.envs.tasks.allegro.object_scenes import build_scene, scene_dir
+
+    root = {"full": lambda: full_after(3_000), "unwritable": lambda: _unwritable_dir(tmp_path),
+            "a_file": lambda: tmp_path / "a_file"}[cache]()
+    if cache == "a_file":
+        root.write_text("")
+    monkeypatch.setenv("DEXMOTS_CACHE", str(root))
+    with pytest.raises(OSError) as err:
+        build_scene("stapler_a")
+    msg = str(err.value)
+    assert "DEXMOTS_CACHE" in msg and str(root) in msg and "\n" not in msg
+    assert not scene_dir("stapler_a").exists()  # no half-written scene folder
+    with pytest.raises(SystemExit) as cli_err:  # and a console script says it in one line
+        with os_errors_as_one_line("dexmots-eval"):
+            build_scene("stapler_a")
+    assert "DEXMOTS_CACHE" in _one_line(cli_err, "dexmots-eval")
+
+
+def test_eval_refuses_objects_of_another_class_or_topology(tmp_path, capsys):
+    from dexmots_rl.apps import eval as eval_app
+
+    run = tmp_path / "run"
+    with initialize_config_dir(config_dir=str(train_app.CONFIG_DIR), version_base="1.3"):
+        train_app.run(compose("config", overrides=[
+            "task=stapler", "algo=ppo", "task.num_envs=2", "task.max_episode_steps=4", "algo.frames_per_batch=8",
+            "algo.total_frames=8", "algo.minibatch_size=8", "algo.hidden=[8]", "eval.episodes=1", "progress=false",
+            f"run_dir={run}"]))
+    for objects, differs in (("drawer_a", "class"), ("scissors_a,scissors_b", "class")):
+        with pytest.raises(SystemExit) as err:
+            eval_app.main([str(run), "--episodes", "1", "--objects", objects])
+        msg = _one_line(err, "dexmots-eval")
+        assert msg.startswith("dexmots-eval: --objects: ") and f"differs in its {differs}" in msg and "stapler_a" in msg
+    assert not (run / "eval.json").exists()
+    from dexmots_rl.envs.tasks.allegro.object_scenes import check_evaluation_objects
+
+    assert check_evaluation_objects({"object": "stapler_a", "objects": None}, "heldout") == ["stapler_b"]
+    assert check_evaluation_objects({"object": "valve_a", "objects": "valve_a,valve_c"}, "valve_b") == ["valve_b"]

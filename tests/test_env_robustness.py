@@ -86,3 +86,14 @@ def test_env_survives_a_spawn_process_round_trip():
     env = make_env("screw_claw", num_envs=2, seed=0)
     with mp.get_context("spawn").Pool(1) as pool:
         assert pool.apply(_observation_in_child, (env,)) == env.reset()["observation"].shape
+
+
+def test_a_partial_reset_keeps_the_kept_worlds_reward_terms(raw_env):
+    td = _step_with(raw_env, torch.full((N, raw_env.action_spec.shape[-1]), 0.3))
+    terms = td["reward_terms"].clone()
+    assert any(bool((value != 0).all()) for value in terms.values())
+    td.set("_reset", torch.tensor([[True], [False]]))
+    out = raw_env._reset(td)
+    for name, value in terms.items():
+        assert bool((out["reward_terms", name][0] == 0).all()), name  # the reset world starts afresh
+        assert torch.equal(out["reward_terms", name][1], value[1]), name  # the kept world keeps its terms

@@ -229,3 +229,11 @@ def test_a_scene_whose_mjcf_is_gone_is_drawn_from_its_object(tmp_path):
     got = scene_geometry(scene, asset=asset)
     assert [(p.name, p.role, p.body) for p in got.parts] == [(p.name, p.role, p.body) for p in want.parts]
     assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(got.parts, want.parts))
+
+
+def test_the_printed_address_is_the_host_it_serves_on(recording):
+    viewer = ReplayViewer(recording, host="0.0.0.0", port=0)
+    try:
+        assert viewer.url == f"http://0.0.0.0:{viewer.port}/"
+    finally:
+        viewer.stop()

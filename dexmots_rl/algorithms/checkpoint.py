@@ -34,7 +34,7 @@ from typing import Any
 import torch
 
 from ..atomic import atomic_torch_save
-from ..integrity import checksum_problem, with_checksum
+from ..integrity import checksum_problem, load_failure, with_checksum
 
 __all__ = ["CheckpointError", "FORMAT_NAME", "FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "latest_checkpoint",
            "restore_rng_states", "rng_states"]
@@ -61,7 +61,7 @@ def load_checkpoint(path: str | os.PathLike, task: str | None = None) -> dict[st
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # truncated zip, pickle garbage, ...
-        raise CheckpointError(f"checkpoint {path} is truncated or not a checkpoint ({type(e).__name__}: {e})") from None
+        raise CheckpointError(f"checkpoint {path} is truncated or not a checkpoint ({load_failure(e)})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         raise CheckpointError(f"checkpoint {path}: not a {FORMAT_NAME} file")
     version = data.get("version")

@@ -4,6 +4,7 @@ directory, permissions) is one line on stderr naming the program, not a tracebac
 from __future__ import annotations
 
 import errno
+import os
 from contextlib import contextmanager
 
 __all__ = ["errors_as_one_line", "os_errors_as_one_line"]
@@ -16,8 +17,9 @@ def os_errors_as_one_line(prog: str):
         yield
     except OSError as e:
         where = f" ({e.filename})" if e.filename else ""
-        if e.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
+        if e.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)) and e.strerror == os.strerror(e.errno):
             raise SystemExit(f"{prog}: no space left on device{where}; free some space and rerun") from None
+        # a message of our own (not the system's) already says what to do
         raise SystemExit(f"{prog}: {e.strerror or e}{where}") from None
 
 

@@ -5,7 +5,8 @@
     dexmots-eval runs/screw_claw_ahac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
     dexmots-eval runs/spray_bottle_ahac_seed0 --objects heldout      # a tool task on its class's held-out objects
 
-``--objects`` evaluates a policy of an articulated-object task on other objects of the same topology:
+``--objects`` evaluates a policy of an articulated-object task on other objects of the same class and topology
+(others are refused: the policy's observation and actions are those of its own):
 ``train`` / ``heldout`` (the class's library split, :func:`dexmots_rl.assets.objects.object_split`) or names
 separated by commas; the result says which (``objects``) and breaks success down by object (``success_by_variant``).
 Each object set has its own file in the run directory, so one does not replace another: ``eval.json`` (the run's
@@ -68,7 +69,9 @@ def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None
         if args.objects is not None:
             if "objects" not in task_cfg:
                 raise ValueError(f"--objects: task {data['task']!r} has no object variants (task.objects)")
-            task_cfg.update(objects=args.objects, variants=0)
+            from ..envs.tasks.allegro.object_scenes import check_evaluation_objects
+
+            task_cfg.update(objects=check_evaluation_objects(task_cfg, args.objects), variants=0)
         result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
                   **({"objects": args.objects} if args.objects is not None else {}),
                   **evaluate_policy(actor, task_cfg, args.episodes, args.seed, args.device,
@@ -76,8 +79,12 @@ def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None
     except (CheckpointError, ValueError) as e:
         raise SystemExit(f"dexmots-eval: {e}") from None
     out = Path(args.out) if args.out else default_out(args.checkpoint, args.objects)
-    atomic_write_json(out, result)
-    print(dumps_json(result))
+    print(dumps_json(result), flush=True)  # first: a result that cannot be written is not lost
+    try:
+        atomic_write_json(out, result)
+    except OSError as e:
+        raise SystemExit(f"dexmots-eval: the result (printed above) could not be written to {out} "
+                         f"({'--out' if args.out else 'the run directory'}): {e.strerror or e}") from None
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from ..sim.simulator import check_device
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
 from .demos import demo_path, read_demo
+from .fields import check_value, rule
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
@@ -100,9 +101,8 @@ class DexEnv(EnvBase):
         # what __reduce__ rebuilds from: the simulator holds warp (ctypes) arrays that cannot be pickled
         self._init_kwargs = dict(config=config, num_envs=num_envs, device=device, differentiable=differentiable,
                                  seed=seed, dtype=dtype, adjoint_clip=adjoint_clip, contact=contact, scene=scene)
-        num_envs = config.num_envs if num_envs is None else num_envs
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs <= 0:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        # any whole number (a numpy integer too), as a Python int
+        num_envs = check_value("num_envs", config.num_envs if num_envs is None else num_envs, int, rule(gt=0))
         device = check_device(device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         if scene is None:
@@ -117,7 +117,8 @@ class DexEnv(EnvBase):
         self.param_ranges = self._param_ranges()
         if config.demo is not None and config.references is not None:
             raise ValueError("task.demo and task.references both given: a task follows one reference")
-        self._bank = None if config.references is None else load_reference_bank(config.references, dtype, device)
+        self._bank = (None if config.references is None
+                      else load_reference_bank(config.references, dtype, device, dt=self.sim.dt))
         # a demonstration is read (and checked) now, and turned into the task's reference once the task's own
         # fields exist (the first use of reference_bank; make_env makes that use before returning)
         self._demo = None if config.demo is None else read_demo(demo_path(config.name, config.demo))
@@ -269,7 +270,8 @@ class DexEnv(EnvBase):
 
     # ------------------------------------------------------------------------------------ internals
     def _set_seed(self, seed: int | None):
-        self.generator.manual_seed(int(seed) % (2**63))
+        seed = check_value("seed", seed, int, rule())  # int() took 1.7 as 1
+        self.generator.manual_seed(seed % (2**63))
         self._seed = seed
 
     def _rand(self, *shape) -> torch.Tensor:
@@ -352,7 +354,10 @@ class DexEnv(EnvBase):
         out.set(("task", "step"), step)
         out.set(("info", "sim_failures"), failures)
         for name in self.reward_terms:
-            out.set(("reward_terms", name), torch.zeros(n, 1, dtype=self.dtype, device=self.device))
+            zero = torch.zeros(n, 1, dtype=self.dtype, device=self.device)
+            old = tensordict.get(("reward_terms", name), None) if mask is not None else None
+            # a partial reset zeroes the reset worlds' terms only: the kept worlds keep their last step's
+            out.set(("reward_terms", name), zero if old is None else torch.where(mask, zero, old))
         out.set("success", self.task_success(obs, obs[("task", "goal")]))
         false = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})

@@ -20,6 +20,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Sequence
@@ -27,13 +28,15 @@ from typing import Sequence
 import torch
 from tensordict import TensorDict
 
-__all__ = ["MAX_ABS_COORDINATE", "MAX_ABS_WRENCH", "check_reference_values", "load_reference_bank",
+__all__ = ["DT_TOLERANCE", "MAX_ABS_COORDINATE", "MAX_ABS_WRENCH", "check_reference_values", "load_reference_bank",
            "lookup"]
 
 # Sanity bounds of a plan an env accepts: 100 rad is ~16 turns of a knob and 100 m is far outside any
 # scene; a plan past them is corrupt or mis-scaled (a 3.46e8 rad reference was once accepted silently).
 MAX_ABS_COORDINATE = 100.0
 MAX_ABS_WRENCH = 1.0e6  # N / N m
+# a plan's dt and the env's agree to float32 rounding (the simulator keeps its step in float32: 1/60 is 0.0166666667)
+DT_TOLERANCE = 1e-6
 
 
 def check_reference_values(plan, source: str = "plan") -> None:
@@ -71,11 +74,17 @@ def _trajectories(src) -> list:
                      f"PoseWrenchTrajectory, got {type(src).__name__}")
 
 
-def load_reference_bank(src, dtype: torch.dtype = torch.float32, device="cpu") -> TensorDict:
-    """Stack plans into a bank ``[M, T]`` (see the module docstring); all plans must share K and dt."""
+def load_reference_bank(src, dtype: torch.dtype = torch.float32, device="cpu", dt: float | None = None) -> TensorDict:
+    """Stack plans into a bank ``[M, T]`` (see the module docstring); all plans must share K and dt, and with
+    ``dt`` (the env's step, s) have that dt: row ``k`` is the reference after ``k`` steps of the env, so a
+    plan of another step would be followed at the wrong speed."""
     plans = _trajectories(src)
     for i, plan in enumerate(plans):
-        check_reference_values(plan, str(src) if isinstance(src, (str, os.PathLike)) else f"plan {i}")
+        source = str(src) if isinstance(src, (str, os.PathLike)) else f"plan {i}"
+        check_reference_values(plan, source)
+        if dt is not None and not math.isclose(plan.dt, dt, rel_tol=DT_TOLERANCE):
+            raise ValueError(f"references: {source} was planned with dt {plan.dt:.6g} s, the env steps dt "
+                             f"{dt:.6g} s; plan again with the env's step (dexmots-plan)")
     ks = {t.num_joints for t in plans}
     dts = {round(t.dt, 9) for t in plans}
     if len(ks) != 1 or len(dts) != 1:

@@ -53,7 +53,7 @@ import torch
 from tensordict import TensorDict
 
 from ..atomic import atomic_torch_save
-from ..integrity import CHECKSUM_KEY, checksum_problem, with_checksum
+from ..integrity import CHECKSUM_KEY, checksum_problem, load_failure, with_checksum
 
 __all__ = [
     "FORMAT_NAME",
@@ -313,6 +313,6 @@ class PoseWrenchTrajectory:
             data = torch.load(path, map_location=map_location, weights_only=True)
         except Exception as err:  # torch raises many types for a bad archive (RuntimeError, EOFError, pickle…)
             raise TrajectoryFormatError(
-                f"{path}: file is truncated or corrupted ({type(err).__name__}: {err})"
-            ) from err
+                f"{path}: file is truncated or corrupted ({load_failure(err)})"
+            ) from None
         return cls.from_state_dict(data, source=str(path))

@@ -142,8 +142,10 @@ class ReplayViewer:
     # ------------------------------------------------------------------------------------------ api
     @property
     def url(self) -> str:
-        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
-        return f"http://{host}:{self.port}/"
+        """The address it serves on, as given (``0.0.0.0``: every interface of this machine, reachable from
+        others by its name or address)."""
+        host = self.host or "0.0.0.0"
+        return f"http://[{host}]:{self.port}/" if ":" in host else f"http://{host}:{self.port}/"
 
     @property
     def frame(self) -> int:

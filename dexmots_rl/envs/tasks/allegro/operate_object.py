@@ -43,15 +43,12 @@ joint state and poses, so it can run on held-out objects whose index it never sa
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import os
 from pathlib import Path
 from typing import ClassVar, Optional
 
 import torch
 from tensordict import TensorDict
 
-from ....atomic import atomic_write
 from ....quaternions import quat_angle
 from ....sim import ContactParams
 from ....sim.object_model import SLIDE
@@ -64,6 +61,7 @@ from ...registry import register_task
 from ...config import TaskConfig, rule
 from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward, distal_weighted_joint_weights, \
     fingertip_reward
+from .object_scenes import build_scene, object_names, scene_dir
 from .urdf_object import UrdfOptions, cached_pregrasps, urdf_load_options
 
 __all__ = ["OperateObjectConfig", "OperateObjectEnv", "HAND_CONTACT", "build_scene"]
@@ -112,72 +110,6 @@ class OperateObjectConfig(TaskConfig):
     lambda_base: float = dataclasses.field(default=0.5, metadata=rule(ge=0))  # weight of the base's stillness
     reward: RewardCoefficients = dataclasses.field(
         default_factory=lambda: RewardCoefficients(lambda_pose=1.0, lambda_wrench=0.5, lambda_act=0.01, lambda_f=0.5))
-
-
-def scene_dir(object_name: str, options: dict | None = None) -> Path:
-    """Where the scene of ``object_name`` (loaded with ``options``) is written (its MJCF and mesh files; the
-    recorder and the viewer read it back; a URDF's pre-grasps): ``$DEXMOTS_CACHE`` or ``~/.cache/dexmots_rl``,
-    then ``scenes/<object>-<hash>``."""
-    root = Path(os.environ.get("DEXMOTS_CACHE", Path.home() / ".cache" / "dexmots_rl"))
-    key = str(Path(object_name).resolve() if object_name.endswith(".urdf") else object_name)
-    if options:
-        key += repr(sorted(options.items()))
-    digest = hashlib.sha1(key.encode()).hexdigest()[:10]
-    return root / "scenes" / f"{Path(object_name).stem}-{digest}"
-
-
-def object_names(objects, object_name: str | None = None) -> list[str]:
-    """``task.objects`` as a list of names: a list, or one string of names separated by commas or spaces; the
-    keyword ``train`` or ``heldout`` stands for that part of the library split of ``object_name``'s class
-    (:func:`~dexmots_rl.assets.objects.object_split`)."""
-    from ....assets.objects import INSTANCES, SPLITS, object_split
-
-    names = ([name for name in objects.replace(",", " ").split() if name] if isinstance(objects, str)
-             else [str(name) for name in objects])
-    if len(names) == 1 and names[0] in SPLITS:
-        if object_name is None or object_name not in INSTANCES:
-            raise ValueError(f"task.objects={names[0]}: the split is of a library class, and task.object "
-                             f"{object_name!r} is not a library object (one of {sorted(INSTANCES)})")
-        return object_split(object_name)[names[0]]
-    return names
-
-
-def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale: float = 0.1,
-                variant_seed: int = 0, urdf: UrdfOptions | None = None, joint: str | None = None):
-    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
-    and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none). With
-    ``objects`` (names or URDF paths) or ``variants`` >= 2 (size variants of ``object_name``), a scene of those
-    object variants (the module docstring); the object returned is variant 0's. ``urdf`` and ``joint``: how a
-    URDF is loaded (:func:`.urdf_object.urdf_load_options`)."""
-    from ....assets.objects import load_object, sample_variants
-    from ....sim import load_scene
-    from ....sim.object_variants import load_variants
-
-    urdf = urdf or UrdfOptions()
-    if objects:
-        names = object_names(objects, object_name)
-        options = [urdf_load_options(urdf, joint, name) for name in names]
-        assets = [load_object(name, **given) for name, given in zip(names, options)]
-        keys = list(zip(names, options))
-    elif variants >= 2:
-        assets = sample_variants(object_name, variants, variant_seed, variant_scale)
-        keys = [(object_name, {})] + [(f"{a.name}-seed{variant_seed}-scale{variant_scale!r}", {}) for a in assets[1:]]
-    else:
-        given = urdf_load_options(urdf, joint, object_name)
-        asset = load_object(object_name, **given)
-        return load_scene(_write_scene(asset, object_name, given)), asset
-    return load_variants([_write_scene(asset, *key) for asset, key in zip(assets, keys)]), assets[0]
-
-
-def _write_scene(asset, key: str, options: dict) -> Path:
-    from ....assets.hand_scene import hand_object_scene_xml
-
-    folder = scene_dir(key, options)
-    folder.mkdir(parents=True, exist_ok=True)
-    xml = hand_object_scene_xml(asset, folder)  # writes the mesh files, each atomically
-    path = folder / "scene.xml"
-    atomic_write(path, lambda f: f.write(xml.encode()))
-    return path
 
 
 def _pose(pos, rot) -> list[float]:
