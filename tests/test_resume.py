@@ -63,3 +63,20 @@ def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, stop_after, 
     one, other = (load_checkpoint(tmp_path / run / "checkpoints" / "last.pt") for run in ("straight", "split"))
     _assert_same_tensors(one["modules"], other["modules"], "modules")
     _assert_same_tensors(one["optimizers"], other["optimizers"], "optimizers")
+
+
+@pytest.mark.parametrize("algo, missing", [("ppo", "env_state"), ("sac", "replay_buffer")])
+def test_a_checkpoint_from_before_saved_episodes_resumes_or_says_why_not(tmp_path, caplog, algo, missing):
+    from dexmots_rl.algorithms.checkpoint import CheckpointError, save_checkpoint
+
+    run = tmp_path / "run"
+    assert train(_cfg(algo, run, "stop_after=1")) == {}
+    path = run / "checkpoints" / "last.pt"
+    save_checkpoint(path, {k: v for k, v in load_checkpoint(path).items()
+                           if k not in (missing, "format", "version", "sha256")})
+    if algo == "sac":  # without its transitions SAC cannot go on as it would have
+        with pytest.raises(CheckpointError, match="no replay buffer"):
+            train(_cfg(algo, tmp_path / "elsewhere", f"resume={run}"))
+        return
+    result = train(_cfg(algo, tmp_path / "elsewhere", f"resume={run}"))  # the same networks, fresh episodes
+    assert result["iterations"] == 4 and "start afresh" in caplog.text

@@ -33,7 +33,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 from ..progress import progress_bar
 from ..envs import make_env
 from .budget import RunBudget, TrainingClock
-from .checkpoint import restore_rng_states, rng_states
+from .checkpoint import CheckpointError, restore_rng_states, rng_states
 from .rundir import RunDirectory
 
 __all__ = ["CollectorLoop", "ObsNorm", "RunningObsNorm", "batch_metrics", "deployable_policy", "load_replay_buffer",
@@ -253,8 +253,16 @@ class CollectorLoop:
         for name, optimizer in optimizers.items():
             optimizer.load_state_dict(start["optimizers"][name])
         if self.replay_buffer is not None:
+            if "replay_buffer" not in start:
+                raise CheckpointError(f"resume={self.cfg.resume}: the checkpoint holds no replay buffer (written "
+                                      "before SAC runs could resume); start a new run")
             load_replay_buffer(self.replay_buffer, start["replay_buffer"])
         if collector is None:
+            return
+        if "env_state" not in start:  # an older checkpoint: the same networks, but the episodes start afresh
+            log.warning("resume=%s: the checkpoint predates saved episodes; they start afresh, so the run will "
+                        "not be the uninterrupted one", self.cfg.resume)
+            torch.set_rng_state(start["rng"]["torch"])
             return
         carrier = collector._carrier  # torchrl keeps the worlds' current TensorDict there between batches
         carrier.update_(TensorDict.from_dict(start["env_state"], batch_size=carrier.batch_size, device=carrier.device))
