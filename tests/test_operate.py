@@ -1,6 +1,7 @@
 """The task ``operate`` over every object of the library and over a PartNet-Mobility-style URDF."""
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -8,6 +9,7 @@ import torch
 
 from dexmots_rl.assets.objects import list_objects
 from dexmots_rl.envs import make_env
+from dexmots_rl.envs.tasks.allegro.tools import TOOL_TASKS
 
 from partnet_fixtures import stapler
 
@@ -136,3 +138,23 @@ def test_jar_lid_turns_to_its_goal_while_the_jar_is_held():
     lid = td["object", "q"][:, base.joint_index]
     assert (lid > 0.5 * td["task", "goal"][:, 0]).all()
     assert td["success"].float().mean() >= 0.5
+
+
+@pytest.mark.parametrize("task", sorted(TOOL_TASKS))
+def test_a_tool_task_refuses_another_class_naming_the_field_and_its_instances(task):
+    """``task=stapler task.object=drawer_a`` is a typo or a mix-up: refused at the config, naming the field and
+    the class's instances; the class's own instances and ``operate`` (any class) are accepted."""
+    from dexmots_rl.assets.objects import INSTANCES
+    from dexmots_rl.envs import task_config
+    from dexmots_rl.envs.config import override_config
+
+    config = task_config(task)
+    tool_class = INSTANCES[config.object][0]
+    ours = [name for name, (cls, _) in INSTANCES.items() if cls == tool_class]
+    other = next(name for name, (cls, _) in INSTANCES.items() if cls != tool_class)
+    message = f"task.{{}}: {other!r} is a {INSTANCES[other][0]}; the {task} task takes a {tool_class}: {', '.join(ours)}"
+    for field, value in (("object", other), ("objects", f"{ours[0]},{other}")):
+        with pytest.raises(ValueError, match="^" + re.escape(message.format(field))):
+            override_config(config, {field: value})
+    override_config(config, {"object": ours[-1], "objects": ",".join(ours)})
+    override_config(task_config("operate"), {"object": other})

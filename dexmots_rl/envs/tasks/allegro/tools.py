@@ -33,62 +33,83 @@ from __future__ import annotations
 import dataclasses
 
 from ...registry import register_task
-from .operate_object import OperateObjectConfig, OperateObjectEnv
+from .operate_object import OperateObjectConfig, OperateObjectEnv, object_names
 
-__all__ = ["SprayBottleConfig", "ScissorsConfig", "StaplerConfig", "PumpDispenserConfig", "JarConfig", "ValveConfig", "DrawerConfig", "PliersConfig", "DoorHandleConfig",
+__all__ = ["ToolConfig", "SprayBottleConfig", "ScissorsConfig", "StaplerConfig", "PumpDispenserConfig", "JarConfig", "ValveConfig", "DrawerConfig", "PliersConfig", "DoorHandleConfig",
            "TOOL_TASKS"]
 
 
 @dataclasses.dataclass
-class SprayBottleConfig(OperateObjectConfig):
+class ToolConfig(OperateObjectConfig):
+    """A tool task's config: its ``object`` and ``objects`` are of the class of its default object (a library
+    instance of that class, or a .urdf path); ``operate`` takes any class."""
+
+    def validate(self) -> "ToolConfig":
+        from ....assets.objects import INSTANCES
+
+        super().validate()
+        tool_class = INSTANCES[type(self).object][0]
+        given = [("object", self.object)]
+        if isinstance(self.objects, (str, list, tuple)):
+            given += [("objects", name) for name in object_names(self.objects, self.object)]
+        for field, name in given:
+            if isinstance(name, str) and name in INSTANCES and INSTANCES[name][0] != tool_class:
+                ours = ", ".join(n for n, (c, _) in INSTANCES.items() if c == tool_class)
+                raise ValueError(f"task.{field}: {name!r} is a {INSTANCES[name][0]}; the {self.name} task takes a "
+                                 f"{tool_class}: {ours} (or a .urdf path; task=operate takes any class)")
+        return self
+
+
+@dataclasses.dataclass
+class SprayBottleConfig(ToolConfig):
     name: str = "spray_bottle"
     object: str = "spray_bottle_a"
 
 
 @dataclasses.dataclass
-class ScissorsConfig(OperateObjectConfig):
+class ScissorsConfig(ToolConfig):
     name: str = "scissors"
     object: str = "scissors_a"
 
 
 @dataclasses.dataclass
-class StaplerConfig(OperateObjectConfig):
+class StaplerConfig(ToolConfig):
     name: str = "stapler"
     object: str = "stapler_a"
 
 
 @dataclasses.dataclass
-class PumpDispenserConfig(OperateObjectConfig):
+class PumpDispenserConfig(ToolConfig):
     name: str = "pump_dispenser"
     object: str = "pump_dispenser_a"
 
 
 @dataclasses.dataclass
-class JarConfig(OperateObjectConfig):
+class JarConfig(ToolConfig):
     name: str = "jar"
     object: str = "jar_a"
 
 
 @dataclasses.dataclass
-class ValveConfig(OperateObjectConfig):
+class ValveConfig(ToolConfig):
     name: str = "valve"
     object: str = "valve_a"
 
 
 @dataclasses.dataclass
-class DrawerConfig(OperateObjectConfig):
+class DrawerConfig(ToolConfig):
     name: str = "drawer"
     object: str = "drawer_a"
 
 
 @dataclasses.dataclass
-class PliersConfig(OperateObjectConfig):
+class PliersConfig(ToolConfig):
     name: str = "pliers"
     object: str = "pliers_a"
 
 
 @dataclasses.dataclass
-class DoorHandleConfig(OperateObjectConfig):
+class DoorHandleConfig(ToolConfig):
     name: str = "door_handle"
     object: str = "door_handle_a"
 
