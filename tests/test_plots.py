@@ -74,6 +74,27 @@ def test_curves_from_csvlogger_run_dirs(tmp_path):
     assert [ax.get_title() for ax in fig.axes] == ["success_rate"]
 
 
+def test_the_final_evaluation_ends_the_evaluation_curves(tmp_path):
+    """The logger holds the periodic evaluations; the final one (metrics.json, at the run's last iteration) is
+    their last point, also for a run that evaluated only at the end."""
+    run = tmp_path / "run"
+    logger = CSVLogger(exp_name="logs", log_dir=str(run))
+    for iteration, success in ((10, 0.2), (20, 0.6)):
+        logger.log_scalar("eval_success_rate", success, step=iteration)
+        logger.log_scalar("eval_reward", success - 1, step=iteration)
+    (run / "metrics.json").write_text(json.dumps({"success_rate": 0.9, "reward": -0.05, "iterations": 25,
+                                                  "episodes": 100, "env_steps": 9000}))
+    only_final = _fake_run(tmp_path, "only_final", [(0.1, 0.0)])
+    (only_final / "metrics.json").write_text(json.dumps({"success_rate": 0.5, "iterations": 3}))
+    runs = load_scalars([run, only_final])
+    np.testing.assert_allclose(runs["run"]["eval_success_rate"], [[10, 0.2], [20, 0.6], [25, 0.9]])
+    np.testing.assert_allclose(runs["run"]["eval_reward"], [[10, -0.8], [20, -0.4], [25, -0.05]])
+    assert "eval_episodes" not in runs["run"] and "eval_env_steps" not in runs["run"]
+    np.testing.assert_allclose(runs["only_final"]["eval_success_rate"], [[3, 0.5]])
+    fig = plot_curves([run], keys=["eval_success_rate"])
+    np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_xydata()[-1], [25, 0.9])
+
+
 def test_curves_errors_are_clear(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="no scalar CSV"):

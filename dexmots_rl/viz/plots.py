@@ -5,7 +5,8 @@ contact, from the data :func:`dexmots_rl.apps.landscape.landscape_data` computes
 
 **Curves** (:func:`load_scalars`, :func:`plot_curves`): torchrl ``CSVLogger`` output,
 ``<run_dir>/<exp_name>/scalars/<name>.csv`` with rows ``step,value`` (any ``*.csv`` below a run dir is
-read), one panel per scalar name, one line per run.
+read), one panel per scalar name, one line per run; a run's final evaluation (its ``metrics.json``) is the last
+point of its ``eval_*`` curves.
 
 Example:
     >>> import tempfile, pathlib
@@ -21,6 +22,7 @@ Example:
 from __future__ import annotations
 
 import csv
+import json
 import logging
 import math
 from pathlib import Path
@@ -99,12 +101,31 @@ def load_scalars(run_dirs) -> dict[str, dict[str, np.ndarray]]:
             if rows:
                 name = path.stem if path.stem not in scalars else str(path.relative_to(run).with_suffix(""))
                 scalars[name] = np.asarray(sorted(rows))
+        _add_final_evaluation(run, scalars)
         if scalars:
             runs[run.name or str(run)] = scalars
     if not runs:
         raise FileNotFoundError("no scalar CSV files (rows 'step,value') found under "
                                 + ", ".join(repr(str(r)) for r in run_dirs))
     return runs
+
+
+def _add_final_evaluation(run: Path, scalars: dict[str, np.ndarray]) -> None:
+    """The run's final evaluation (``metrics.json``, at its last iteration) as the last point of its ``eval_*``
+    curves, which the logger holds only for the periodic evaluations; ``eval_success_rate`` always."""
+    try:
+        metrics = json.loads((run / "metrics.json").read_text())
+    except (OSError, ValueError):  # no final evaluation (yet), or a file being written
+        return
+    step = metrics.get("iterations")
+    if not isinstance(step, (int, float)):
+        return
+    for key, value in metrics.items():
+        name = f"eval_{key}"
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and (
+                name in scalars or key == "success_rate"):
+            earlier = scalars.get(name, np.zeros((0, 2)))
+            scalars[name] = np.concatenate([earlier[earlier[:, 0] < step], [[float(step), float(value)]]])
 
 
 def plot_curves(run_dirs, keys: list[str] | None = None, out: str | Path | None = None, smooth: int = 1):
