@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from dexmots_rl.apps.bench import format_table, run
+from dexmots_rl.apps.bench import build_parser, format_table, run
+from dexmots_rl.envs import list_tasks
 
 
 def test_throughput_bench_reports_every_rate_in_contact():
@@ -73,6 +74,12 @@ def test_train_bench_over_seeds_reports_each_run_and_the_spread(tmp_path):
     assert result["success_rate"] == pytest.approx(sum(rates) / 2)
     assert result["success_rate_std"] == pytest.approx(abs(rates[0] - rates[1]) / math.sqrt(2))
     assert {"task", "algo", "success_rate", "wall_clock_s", "env_steps"} <= set(result)
+
+
+@pytest.mark.parametrize("task", list_tasks())
+def test_train_bench_takes_every_registered_task(task):
+    args = build_parser().parse_args(["train", "--task", task, "--seed", "1", "algo.iterations=1"])
+    assert (args.task, args.seed, args.overrides) == (task, 1, ["algo.iterations=1"])
 
 
 def test_pipeline_bench_reports_rollout_and_collector_against_the_kernels():

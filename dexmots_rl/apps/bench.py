@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=200)
 
     p = sub.add_parser("train", help="train from scratch with dexmots-train's defaults, evaluate, time it")
-    common(p)
+    common(p, list_tasks())  # any task dexmots-train trains, bench poses or not
     p.add_argument("--algo", default="ahac", choices=["shac", "ahac"], help="default: dexmots-train's")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--seeds", type=int, nargs="+", default=None,

@@ -93,5 +93,5 @@ def train_one(args, seed: int, run_dir: str | None) -> dict:
     result = train(cfg)
     return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
             "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
-            "mean_final_error": result["mean_final_error"], "goal_success_rate": TRAIN_GOAL_SUCCESS,
+            "mean_final_error": result.get("mean_final_error"), "goal_success_rate": TRAIN_GOAL_SUCCESS,
             "learning_curve": f"{run_dir}/metrics.jsonl"}
