@@ -71,23 +71,22 @@ def declared_config(config_dir: str, overrides: tuple[str, ...] = ()):
     return loader.load_configuration("config", list(overrides), run_mode=RunMode.RUN)
 
 
-def refuse_undeclared_train_keys(cfg) -> None:
-    """``ValueError`` naming a key of ``cfg`` that dexmots-train's configs do not declare for its task and
-    method (a ``+algo.<typo>=...``); ``task.*`` is its typed config's to check."""
+def refuse_undeclared_train_keys(cfg, config_dir) -> None:
+    """``ValueError`` naming a key of ``cfg`` that dexmots-train's configs (``config_dir``) do not declare for its
+    task and method (a ``+algo.<typo>=...``); ``task.*`` is its typed config's to check."""
     from ..algorithms.registry import algorithm
-    from .train import CONFIG_DIR
 
     name = cfg.algo.name
-    declared = declared_config(str(CONFIG_DIR), (f"task={cfg.task.name}", f"algo={algorithm(name).config}"))
+    declared = declared_config(str(config_dir), (f"task={cfg.task.name}", f"algo={algorithm(name).config}"))
     refuse_unknown_keys(cfg, declared, free=("task",), section_names={"algo": f"algo={name}"})
 
 
-def refuse_undeclared_table_keys(cfg) -> None:
-    """:class:`.table_spec.SweepSpecError` naming a key configs/table/config.yaml does not declare."""
+def refuse_undeclared_table_keys(cfg, config_dir) -> None:
+    """:class:`.table_spec.SweepSpecError` naming a key dexmots-table's ``config_dir/config.yaml`` does not
+    declare."""
     from .table_spec import SweepSpecError
-    from .train import CONFIG_DIR
 
     try:
-        refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "table")), free=TABLE_FREE_SECTIONS)
+        refuse_unknown_keys(cfg, declared_config(str(config_dir)), free=TABLE_FREE_SECTIONS)
     except ValueError as e:
         raise SweepSpecError(str(e)) from None

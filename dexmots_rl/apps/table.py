@@ -143,11 +143,12 @@ def _check_composes(loader, master, runs) -> None:
     from ..algorithms.validation import validate_run_config
     from .table_spec import SweepSpecError
     from .config_keys import refuse_undeclared_train_keys
+    from .train import CONFIG_DIR
 
     for run in runs:
         try:
             composed = loader.load_sweep_config(master, list(run.overrides))
-            refuse_undeclared_train_keys(composed)
+            refuse_undeclared_train_keys(composed, CONFIG_DIR)
             validate_run_config(composed)
         except Exception as e:  # hydra's and the validator's errors name the key
             raise SweepSpecError(f"run {run.name}: {e}".splitlines()[0]) from None
@@ -294,12 +295,13 @@ def run_table(cfg) -> dict:
     from ..algorithms.registry import list_algorithms
     from .config_keys import refuse_undeclared_table_keys
     from .table_spec import finished_metrics, replaced_runs, sweep_spec
+    from .train import CONFIG_DIR
 
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    refuse_undeclared_table_keys(cfg)
+    refuse_undeclared_table_keys(cfg, CONFIG_DIR / "table")
     threads = _threads(cfg, cores)
     spec = sweep_spec(cfg, list_algorithms(), envs.list_tasks(),
                       {t: envs.task_config(t).action for t in envs.list_tasks()})

@@ -49,7 +49,7 @@ def run(cfg, overrides: list[str] | None = None) -> dict:
     from ..algorithms.registry import train
     from .config_keys import refuse_undeclared_train_keys
 
-    refuse_undeclared_train_keys(cfg)
+    refuse_undeclared_train_keys(cfg, CONFIG_DIR)
     threads = cfg.get("torch_threads")
     if threads is not None:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
