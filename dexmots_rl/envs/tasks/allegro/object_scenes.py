@@ -94,12 +94,15 @@ def check_evaluation_objects(task_config: dict, objects) -> list[str]:
     the policy trained on: its observation and actions are those of one class and topology."""
     from ....assets.objects import load_object
 
+    urdf, joint = UrdfOptions(**(task_config.get("urdf") or {})), task_config.get("joint")
+
+    def load(name: str):  # as the run's env loads it (a URDF with the run's loader options)
+        return load_object(name, **urdf_load_options(urdf, joint, name))
+
     names = object_names(objects, task_config.get("object"), field="--objects")
     trained = task_config.get("objects")
-    reference = load_object(object_names(trained, task_config.get("object"))[0] if trained
-                            else task_config["object"])
-    check_one_topology([load_object(name) for name in names], "--objects", reference,
-                       "the object the policy was trained on,")
+    reference = load(object_names(trained, task_config.get("object"))[0] if trained else task_config["object"])
+    check_one_topology([load(name) for name in names], "--objects", reference, "the object the policy was trained on,")
     return names
 
 
