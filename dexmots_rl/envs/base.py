@@ -32,6 +32,7 @@ from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
 from .demos import demo_path, read_demo
 from .fields import check_value, rule
+from .object_params import read_object_params
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
@@ -115,6 +116,10 @@ class DexEnv(EnvBase):
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype
         self.param_ranges = self._param_ranges()
+        # the identified values (task.object_params) replace the draw of the parameters they name
+        known = tuple(name for name in scene.param_names if name != "variant")
+        self.identified_params = ({} if config.object_params is None
+                                  else read_object_params(config.object_params, known))
         if config.demo is not None and config.references is not None:
             raise ValueError("task.demo and task.references both given: a task follows one reference")
         self._bank = (None if config.references is None
@@ -323,6 +328,8 @@ class DexEnv(EnvBase):
 
     def _initial_obs(self) -> dict:
         init = self.sample_initial(self.num_envs)
+        for name, value in self.identified_params.items():
+            init["params"][name] = torch.full_like(init["params"][name], value)
         pose, tips = self.sim.observe(init["joint_q"], init["joint_qd"], init["params"])
         zeros6 = torch.zeros(self.num_envs, 6, dtype=self.dtype, device=self.device)
         zeros = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)

@@ -70,6 +70,9 @@ class TaskConfig:
     demo: Optional[str] = None
     reward: RewardCoefficients = dataclasses.field(default_factory=RewardCoefficients)  # paper Eq. 3's λ
     mirror: bool = False  # worlds with a negative goal see the task mirrored (a mirror-symmetric task's option)
+    # identified physical parameters (a dexmots-sysid JSON file): every world uses its values instead of the task's
+    # randomised or nominal ones for the parameters it names; None: the task's own
+    object_params: Optional[str] = None
 
     def validate(self) -> "TaskConfig":
         """Check every field against its annotation and rule (one ``ValueError`` naming the first bad

@@ -18,13 +18,20 @@ topic                  schema (encoding)           content
 ``/dexmots/step``      ``dexmots.Step`` (JSON)       every frame: ``frame``, ``episode``, ``time`` and per
                                                      world lists: ``reward``, ``success``, ``step``,
                                                      ``object_q``, ``wrench``, ``target_wrench``, ``goal``,
-                                                     ``hand_q``, ``joint_q``, ``reward_terms.{name}``
+                                                     ``hand_q``, ``joint_q``, ``joint_qd``,
+                                                     ``reward_terms.{name}``, ``params.{name}`` (the
+                                                     world's physical parameters) and, on a frame that
+                                                     a step led to, ``control.{tau,q_target,kp,kd}``
+                                                     (the hand's drive over that step)
 =====================  ==========================  ====================================================
 
 An MCAP metadata record ``dexmots`` holds ``format``, ``version``, ``task``, ``num_worlds``,
 ``num_frames``, ``dt``, ``dtype``, ``body_names`` (JSON), ``num_hand_links``, ``world_offsets`` (JSON),
-``start_time_ns``, the arrow scales ``force_scale`` / ``torque_scale`` and ``goal`` (``"false"`` when the
-recorded task has no goal pose: the ghost then sits on the object and is hidden at first). A frame's log time is ``start_time_ns + frame * dt``;
+``start_time_ns``, the arrow scales ``force_scale`` / ``torque_scale``, ``goal`` (``"false"`` when the
+recorded task has no goal pose: the ghost then sits on the object and is hidden at first) and ``task_config``
+(JSON: the recorded env's task config, from which ``make_env`` rebuilds the task; ``null`` for a bare simulator).
+``joint_qd``, ``params``, ``control`` and ``task_config`` are newer than the other fields: a reader accepts
+recordings without them. A frame's log time is ``start_time_ns + frame * dt``;
 episodes follow each other on one timeline (``episode`` says which). Poses are position + ``wxyz`` quaternion
 (Foxglove's ``xyzw`` on ``/tf``); float values go through float64 (protobuf doubles, JSON ``repr``), so
 a float32 recording reads back bit-exact. In Foxglove: a 3D panel (fixed frame ``world``) and a Plot
@@ -44,13 +51,14 @@ from tensordict import TensorDict
 
 from .geometry import SceneGeometry
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "TF_TOPIC", "SCENE_TOPIC", "WRENCH_TOPIC", "STEP_TOPIC", "ROOT_FRAME",
+__all__ = ["CONTROL_FIELDS", "FORMAT_NAME", "FORMAT_VERSION", "TF_TOPIC", "SCENE_TOPIC", "WRENCH_TOPIC", "STEP_TOPIC", "ROOT_FRAME",
            "STEP_SCHEMA", "RecordingFormatError", "Recording", "world_frame", "body_frame"]
 
 FORMAT_NAME = "dexmots-recording"
 FORMAT_VERSION = 2
 TF_TOPIC, SCENE_TOPIC, WRENCH_TOPIC, STEP_TOPIC = "/tf", "/scene", "/scene/wrench", "/dexmots/step"
 ROOT_FRAME = "world"
+CONTROL_FIELDS = ("tau", "q_target", "kp", "kd")  # the hand's drive (dexmots_rl.sim.Control), per world and joint
 STEP_SCHEMA_NAME = "dexmots.Step"
 _LIST = {"type": "array", "items": {"type": "number"}}
 _LISTS = {"type": "array", "items": _LIST}
@@ -64,8 +72,10 @@ STEP_SCHEMA = {
         "reward": _LIST, "success": {"type": "array", "items": {"type": "boolean"}},
         "step": {"type": "array", "items": {"type": "integer"}},
         "object_q": _LISTS, "wrench": _LISTS, "target_wrench": _LISTS, "goal": _LISTS, "hand_q": _LISTS,
-        "joint_q": _LISTS,
+        "joint_q": _LISTS, "joint_qd": _LISTS,
         "reward_terms": {"type": "object", "additionalProperties": _LIST},
+        "params": {"type": "object", "additionalProperties": _LIST},
+        "control": {"type": "object", "additionalProperties": _LISTS},
     },
 }
 
@@ -90,7 +100,9 @@ class Recording:
     ``frames`` is a TensorDict of batch ``[F, N]`` (frames x worlds) with ``"body_pose"`` [F, N, B, 7],
     ``"goal_pose"`` [F, N, 7], ``"reward"``, ``"success"``, ``("task", "step")``, ``("object", "q")``,
     ``("object", "wrench")``, ``"target_wrench"``, ``("task", "goal")``, ``("hand", "q")``,
-    ``("sim", "joint_q")`` and ``("reward_terms", name)``. ``episode`` [F] and ``time`` [F] (seconds)
+    ``("sim", "joint_q")`` and ``("reward_terms", name)``; where the file has them, ``("sim", "joint_qd")``,
+    ``("sim", "params", name)`` and ``("control", name)`` for ``name`` in :data:`CONTROL_FIELDS` (NaN on a
+    frame no step led to: an episode's first). ``episode`` [F] and ``time`` [F] (seconds)
     index the timeline; ``world_offsets`` [N, 3] is where each world is drawn.
     """
 

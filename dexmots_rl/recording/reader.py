@@ -20,6 +20,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import math
 import os
 from pathlib import Path
 
@@ -27,7 +28,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from .format import (FORMAT_NAME, FORMAT_VERSION, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, Recording,
+from .format import (CONTROL_FIELDS, FORMAT_NAME, FORMAT_VERSION, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, Recording,
                      RecordingFormatError, body_frame, world_frame)
 from .geometry import MeshPart, SceneGeometry
 
@@ -102,6 +103,26 @@ def _geometry(path: Path, scene, body_names: list[str], num_hand_links: int) -> 
     return SceneGeometry(body_names, num_hand_links, parts, *ghost)
 
 
+def _read_optional(frames: TensorDict, decoded: list[dict], n: int, dtype) -> None:
+    """The step fields newer recordings add: ``joint_qd`` and ``params`` (when every frame has them) and the
+    hand's drive ``control`` (NaN on the frames without it: each episode's first)."""
+    if all("joint_qd" in d for d in decoded):
+        frames["sim", "joint_qd"] = torch.tensor([d["joint_qd"] for d in decoded], dtype=dtype).reshape(len(decoded),
+                                                                                                         n, -1)
+    names = sorted(decoded[0].get("params", {}))
+    if names and all(sorted(d.get("params", {})) == names for d in decoded):
+        for name in names:
+            frames["sim", "params", name] = torch.tensor([d["params"][name] for d in decoded],
+                                                         dtype=dtype).unsqueeze(-1)
+    with_control = [d["control"] for d in decoded if "control" in d]
+    if with_control:
+        width = len(with_control[0][CONTROL_FIELDS[0]][0])
+        for name in CONTROL_FIELDS:
+            missing = [[math.nan] * width] * n
+            frames["control", name] = torch.tensor([d["control"][name] if "control" in d else missing
+                                                    for d in decoded], dtype=dtype)
+
+
 def read_recording(path: str | os.PathLike) -> Recording:
     """Load a recording written by :class:`~dexmots_rl.recording.EpisodeRecorder` (values exact); see the module docstring."""
     from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
@@ -159,6 +180,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
             ("task", "step"): torch.tensor([d["step"] for d in decoded], dtype=torch.int64).unsqueeze(-1),
             **{_FLOAT_FIELDS[k]: v.reshape(len(decoded), n, -1) for k, v in fields.items()},
         }, batch_size=[len(decoded), n])
+        _read_optional(frames, decoded, n, dtype)
         terms = sorted(decoded[0].get("reward_terms", {}))
         for name in terms:
             frames["reward_terms", name] = torch.tensor([d["reward_terms"][name] for d in decoded],

@@ -21,6 +21,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -33,8 +34,8 @@ import torch
 from tensordict import TensorDictBase
 
 from ..atomic import atomic_write
-from .format import (FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC, TF_TOPIC,
-                     WRENCH_TOPIC, body_frame, world_frame)
+from .format import (CONTROL_FIELDS, FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC,
+                     TF_TOPIC, WRENCH_TOPIC, body_frame, world_frame)
 from .geometry import scene_geometry
 from .scene_messages import arrow_style, arrows_update, protobuf_types, scene_update
 
@@ -74,7 +75,7 @@ class EpisodeRecorder:
                  force_scale: float = FORCE_SCALE, torque_scale: float = TORQUE_SCALE,
                  world_spacing: float | None = None, task: str | None = None):
         self.path = Path(path)
-        self.base = getattr(env, "base_env", env)
+        self.env, self.base = env, getattr(env, "base_env", env)
         self.sim = getattr(self.base, "sim", self.base)
         self.num_worlds = int(self.base.batch_size[0]) if hasattr(self.base, "batch_size") else int(
             self.sim.num_worlds)
@@ -100,8 +101,9 @@ class EpisodeRecorder:
         self._pb = protobuf_types()
 
     # --------------------------------------------------------------------------------------- public
-    def record(self, td: TensorDictBase) -> None:
-        """Encode one frame (all worlds) from an env TensorDict."""
+    def record(self, td: TensorDictBase, action: torch.Tensor | None = None) -> None:
+        """Encode one frame (all worlds) from an env TensorDict; ``action``: the base env's action of the step
+        that led to it (its hand drive is recorded, what system identification replays)."""
         if self._closed:
             raise RuntimeError(f"recorder for {self.path} is closed")
         td = td.detach() if hasattr(td, "detach") else td
@@ -124,6 +126,10 @@ class EpisodeRecorder:
         self._messages.append((WRENCH_TOPIC, t_ns, self._arrows(t_ns, body_pose, wrench.double().numpy(),
                                                                 target.double().numpy()).SerializeToString()))
         step = self._step_message(td, target)
+        if action is not None:
+            control = self.base.actions(action.detach().to(self.base.dtype))
+            step["control"] = {name: getattr(control, name).detach().cpu().reshape(n, -1).tolist()
+                               for name in CONTROL_FIELDS}
         self._messages.append((STEP_TOPIC, t_ns, json.dumps(step, separators=(",", ":")).encode()))
         self.num_frames += 1
         self._frames_in_episode += 1
@@ -132,8 +138,17 @@ class EpisodeRecorder:
         """Record a torchrl rollout [N, T] as one episode: its first state, then every ``"next"`` state."""
         self.record(rollout[:, 0].exclude("next"))
         for k in range(rollout.shape[1]):
-            self.record(rollout[:, k].get("next"))
+            self.record(rollout[:, k].get("next"), self._base_action(rollout[:, k]))
         self.end_episode()
+
+    def _base_action(self, td: TensorDictBase) -> torch.Tensor | None:
+        """The action the base env applied in the step of ``td`` (the rollout's action through the env's inverse
+        transforms, e.g. a mirrored world's reflected back), or None when there is no env action to record."""
+        if "action" not in td.keys() or not hasattr(self.base, "actions"):
+            return None
+        td = td.select("action", ("task", "goal"), strict=False).clone()
+        transform = getattr(self.env, "transform", None)
+        return (transform.inv(td) if transform is not None else td).get("action")
 
     def end_episode(self) -> None:
         """Close the current episode (the next frame starts a new one); writes the file when ``live``."""
@@ -255,13 +270,23 @@ class EpisodeRecorder:
             "goal": rows(("task", "goal")),
             "hand_q": rows(("hand", "q")),
             "joint_q": rows(("sim", "joint_q")),
+            "joint_qd": rows(("sim", "joint_qd")),
         }
+        params = td.get(("sim", "params"), None)
+        if params is not None:
+            step["params"] = {name: params.get(name).detach().cpu().reshape(n).tolist()
+                              for name in sorted(params.keys())}
         step["step"] = [s[0] for s in step["step"]]
         terms = td.get("reward_terms", None)
         if terms is not None:
             step["reward_terms"] = {name: terms.get(name).detach().cpu().reshape(n).tolist()
                                     for name in sorted(terms.keys())}
         return step
+
+    def _task_config(self) -> dict | None:
+        """The recorded env's task config as a plain dict (``make_env`` rebuilds the task from it), or None."""
+        config = getattr(self.base, "config", None)
+        return dataclasses.asdict(config) if dataclasses.is_dataclass(config) else None
 
     def _write(self, stream) -> None:
         from mcap.writer import CompressionType, Writer
@@ -288,6 +313,7 @@ class EpisodeRecorder:
             "world_offsets": json.dumps(self._offsets.tolist()), "start_time_ns": str(self.start_time_ns),
             "force_scale": repr(self.force_scale), "torque_scale": repr(self.torque_scale),
             "goal": "true" if self._has_goal else "false",
+            "task_config": json.dumps(self._task_config()),
         })
         sequence: dict[str, int] = {}
         for topic, t_ns, data in self._messages:

@@ -93,7 +93,10 @@ class KnobTurnEnv(DexEnv):
         self._lower, self._upper = t(scene.dof_lower), t(scene.dof_upper)
         self._axis = t(scene.object_base_rot @ scene.object_axis)
         self._knob_pos = t(scene.object_base_pos)
-        self._nominal = (scene.object_damping, scene.object_friction, scene.object_stiffness, scene.object_rest)
+        # the reference's model of the knob: the MJCF's, or the identified values (task.object_params)
+        # (damping, friction, stiffness, rest): the scene's parameters in their order
+        self._nominal = tuple(self.identified_params.get(name, value) for name, value in
+                              scene.default_param_values().items())
         weights = distal_weighted_joint_weights(scene.joints_per_finger, scene.num_fingers, dtype=self.dtype,
                                                 device=self.device)
         self._act_weights = torch.cat([weights, torch.zeros_like(weights)]) if c.action == "vi" else weights

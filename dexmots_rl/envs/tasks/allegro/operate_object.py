@@ -51,7 +51,7 @@ from tensordict import TensorDict
 
 from ....quaternions import quat_angle
 from ....sim import ContactParams
-from ....sim.object_model import SLIDE
+from ....sim.object_model import SLIDE, joint_param_names
 from ...base import DexEnv
 from ...demos import demo_trajectory, part_torque
 from ...object_pregrasp import operate_pregrasp_path
@@ -165,7 +165,10 @@ class OperateObjectEnv(DexEnv):
         self._base0 = torch.as_tensor(tree.q0[:7] if tree.free else _pose(tree.offset_pos[0], tree.offset_rot[0]),
                                       dtype=dt, device=dev)
         j = self.joint_index
-        self._nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
+        nominal = (tree.joint_damping[j], tree.joint_friction[j], tree.joint_stiffness[j], tree.joint_rest[j])
+        # the reference's model of the operated joint: the MJCF's, or the identified values (task.object_params)
+        self._nominal = tuple(self.identified_params.get(name, value) for name, value in
+                              zip(joint_param_names([tree.joint_names[j]]), nominal))
         if self.num_variants > 1:
             self._variant_values = self._variant_table(scene)
             self.breakdowns = {**self.breakdowns, "variant": ("sim", "params", "variant")}  # dexmots-eval's groups
