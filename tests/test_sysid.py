@@ -35,7 +35,7 @@ def test_residual_jacobian_matches_central_differences(knob_data):
         minus[i] -= eps
         fd[:, i] = (problem.jacobian(plus, "fd")[0] - problem.jacobian(minus, "fd")[0]) / (2 * eps)
     assert np.abs(fd).max() > 1e-2
-    np.testing.assert_allclose(jac, fd, rtol=1e-5, atol=1e-7 * np.abs(fd).max())
+    np.testing.assert_allclose(jac, fd, rtol=1e-4, atol=1e-4 * np.abs(fd).max())
 
 
 def test_articulated_parameter_gradients_match_central_differences():

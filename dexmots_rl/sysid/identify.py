@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from .optimize import run_method
-from .problem import ShootingProblem, object_coordinate_kinds
+from .problem import ShootingProblem
 
 __all__ = ["Identification", "identify", "replay_error"]
 
@@ -63,7 +63,7 @@ def replay_error(problem: ShootingProblem, z, index) -> dict:
         zt = torch.as_tensor(np.asarray(z, dtype=np.float64), dtype=problem.dtype).expand(len(index), -1)
         r = problem.residuals(zt, index)
     physical = (r * problem._scales).numpy()
-    kinds = np.array(object_coordinate_kinds(problem.env.sim))
+    kinds = np.array(problem.kinds)
     unit = {"position": "position_m", "angle": "angle_rad", "quaternion": "quaternion"}
     out = {"rms": float(r.square().mean().sqrt())}
     for kind in sorted(set(kinds)):

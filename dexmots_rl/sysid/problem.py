@@ -2,7 +2,8 @@
 
 The recording is cut into short segments (``segment_steps`` env steps). Each segment starts from its recorded
 state (hand and object, positions and velocities) and is driven by its recorded hand drive; the residuals are
-the object's simulated coordinates minus the recorded ones after every step, divided by a measurement scale
+the simulated coordinates (the hand's joints and the object's) minus the recorded ones after every step,
+divided by a measurement scale
 (``position_scale`` metres for positions and slides, ``angle_scale`` radians for hinges and a base's rotation),
 so that one unit of residual is one unit of expected noise. Short segments keep contact's chaos out of the
 gradient: an error cannot grow for longer than a segment.
@@ -27,7 +28,7 @@ from ..envs import make_env
 from ..sim import Control
 from .data import CONTROL_FIELDS, Trajectories
 
-__all__ = ["Cost", "ParamSpace", "ShootingProblem", "POSITIVE_KINDS", "coordinate_scales", "object_coordinate_kinds"]
+__all__ = ["Cost", "ParamSpace", "ShootingProblem", "POSITIVE_KINDS", "coordinate_kinds", "coordinate_scales"]
 
 POSITIVE_KINDS = ("damping", "friction", "stiffness", "mass")  # identified through their logarithm
 MAX_WORLDS = 2048  # worlds per simulator batch (a longer batch is split)
@@ -54,16 +55,19 @@ class Cost:
                 "cpu_seconds": self.cpu_seconds}
 
 
-def object_coordinate_kinds(sim) -> list[str]:
-    """Each object coordinate's kind: ``"position"`` (m: a base's position, a slide), ``"quaternion"`` (a free
-    base's wxyz rotation) or ``"angle"`` (rad: a hinge)."""
+def coordinate_kinds(sim) -> list[str]:
+    """Each state coordinate's kind (the hand's joints, then the object's): ``"position"`` (m: a slide, a base's
+    position), ``"quaternion"`` (a free base's wxyz rotation) or ``"angle"`` (rad: a hinge)."""
+    from ..sim.model import SLIDE as HAND_SLIDE
+
+    hand = ["position" if k == HAND_SLIDE else "angle" for k in sim.scene.joint_type]
     tree = getattr(sim, "tree", None)
     if tree is None:  # one hinged or free object (the knob, the cube)
-        return ["angle"] if sim.scene.articulated else ["position"] * 3 + ["quaternion"] * 4
+        return hand + (["angle"] if sim.scene.articulated else ["position"] * 3 + ["quaternion"] * 4)
     from ..sim.object_model import SLIDE
 
     base = ["position"] * 3 + ["quaternion"] * 4 if tree.free else []
-    return base + ["position" if k == SLIDE else "angle" for k in tree.joint_kind]
+    return hand + base + ["position" if k == SLIDE else "angle" for k in tree.joint_kind]
 
 
 def coordinate_scales(kinds: list[str], position: float, angle: float) -> np.ndarray:
@@ -125,6 +129,9 @@ class ShootingProblem:
 
     ``names``: the parameters to identify (``("sim", "params", name)`` names of the scene); ``initial`` and
     ``bounds``: per-name initial guesses (default: the scene's nominal value) and ``(low, high)`` bounds;
+    ``hand``: the residuals include the hand's joints (default), whose motion against the object carries most of
+    what the data says about it (a gripped knob turns with the fingers whatever its friction; the fingers are
+    what the friction slows), else only the object's coordinates;
     ``validation``: the share of segments held out (chosen by ``seed``); ``max_segments``: at most this many
     segments in all (evenly spaced), to bound the cost. The parameters not identified keep the values the
     recording was made with where it says them, else the scene's nominal values.
@@ -133,7 +140,7 @@ class ShootingProblem:
     def __init__(self, traj: Trajectories, names, *, segment_steps: int = 8, validation: float = 0.25,
                  seed: int = 0, initial: dict | None = None, bounds: dict | None = None,
                  max_segments: int | None = None, position_scale: float = 1e-3, angle_scale: float = 1e-2,
-                 dtype: torch.dtype = torch.float64):
+                 hand: bool = True, dtype: torch.dtype = torch.float64):
         if segment_steps < 1:
             raise ValueError(f"segment_steps must be a positive integer, got {segment_steps}")
         if not 0.0 <= validation < 1.0:
@@ -141,6 +148,7 @@ class ShootingProblem:
         env = make_env(traj.task, num_envs=1, raw=True, differentiable=True, dtype=dtype)
         self.env, self.traj, self.dtype, self.steps = env, traj, dtype, segment_steps
         sim = env.sim
+        self.first = 0 if hand else sim.nu  # the first state coordinate the residuals compare
         if not math.isclose(traj.dt, sim.dt, rel_tol=1e-6):
             raise ValueError(f"dt: the data's frames are {traj.dt:g} s apart, the task {traj.task['name']!r} steps "
                              f"{sim.dt:g} s (substeps x timestep); record at the task's step")
@@ -159,8 +167,8 @@ class ShootingProblem:
         self.space = ParamSpace.build(names, {**nominal, **(initial or {})}, bounds or {})
         self.nominal = nominal
         self._split(segment_steps, validation, seed, max_segments)
-        kinds = object_coordinate_kinds(sim)
-        self._scales = torch.as_tensor(coordinate_scales(kinds, position_scale, angle_scale), dtype=dtype)
+        self.kinds = coordinate_kinds(sim)[self.first:]
+        self._scales = torch.as_tensor(coordinate_scales(self.kinds, position_scale, angle_scale), dtype=dtype)
         self._sims: dict[int, object] = {}
         self.cost = Cost()
 
@@ -189,7 +197,7 @@ class ShootingProblem:
         self.starts = starts
         self.q0, self.qd0 = tensor(t.joint_q[f, w]), tensor(t.joint_qd[f, w])
         self.controls = {k: tensor(t.control[k][ahead, w[:, None]]) for k in CONTROL_FIELDS}  # [S, L, nu]
-        self.target = tensor(t.joint_q[ahead, w[:, None]][..., nu:])  # [S, L, D]
+        self.target = tensor(t.joint_q[ahead, w[:, None]][..., self.first:])  # [S, L, D]
         fixed = {}
         for name in self.env.sim.scene.param_names:
             recorded = t.params.get(name)
@@ -224,12 +232,12 @@ class ShootingProblem:
         for i, name in enumerate(self.space.names):
             params[name] = values[:, i:i + 1]
         q, qd = self.q0[index], self.qd0[index]
-        nu, preds = sim.nu, []
+        preds = []
         for k in range(self.steps):
             control = Control(*(self.controls[c][index, k] for c in CONTROL_FIELDS))
             out = sim.step(q, qd, control, params)
             q, qd = out.joint_q, out.joint_qd
-            preds.append(q[:, nu:])
+            preds.append(q[:, self.first:])
         self.cost.forward_steps += n * self.steps
         return (torch.stack(preds, 1) - self.target[index]) / self._scales
 

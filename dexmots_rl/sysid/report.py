@@ -91,7 +91,8 @@ def _plot_trajectories(result, problem, fig, count: int = 4) -> None:
             zt = torch.as_tensor(z, dtype=problem.dtype).expand(len(index), -1)
             preds.append(problem.residuals(zt, index).numpy() * scales + problem.target[index].numpy())
     recorded = problem.target[index].numpy()
-    coordinate = int(np.argmax(recorded.std(axis=(0, 1))))  # the coordinate that moves most
+    first = problem.env.sim.nu - problem.first  # the object's first coordinate among the compared ones
+    coordinate = first + int(np.argmax(recorded[..., first:].std(axis=(0, 1))))  # the object's that moves most
     t = np.arange(1, problem.steps + 1) * problem.traj.dt
     for k in range(len(index)):
         ax = fig.add_subplot(1, len(index), k + 1)
@@ -99,7 +100,7 @@ def _plot_trajectories(result, problem, fig, count: int = 4) -> None:
         ax.plot(t, preds[0][k, :, coordinate], "--", label="initial guess")
         ax.plot(t, preds[1][k, :, coordinate], "-", label="identified")
         ax.set_xlabel("s")
-        ax.set_title(f"segment {int(index[k])}, coordinate {coordinate}", fontsize=8)
+        ax.set_title(f"segment {int(index[k])}, object coordinate {coordinate - first}", fontsize=8)
     fig.axes[0].legend(fontsize=7)
 
 

@@ -2,9 +2,9 @@
 
 A task's env (float64, no mirror) runs ``worlds`` episodes with the object's parameters set to ``truth``, the
 hand driven by the task's scripted controller plus noise where it has one, else by smoothed random actions of
-the task's own action space; the object's recorded coordinates then get measurement noise (``position_noise``
-metres on positions and slides, ``angle_noise`` radians on hinges and a base's rotation). Velocities are kept
-as simulated.
+the task's own action space; the recorded coordinates (the hand's joints and the object's) then get measurement
+noise (``position_noise`` metres on positions and slides, ``angle_noise`` radians on hinges and a base's
+rotation). Velocities are kept as simulated.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import torch
 
 from ..envs import DexEnv, ScriptedPolicy, make_env, task_entry
 from .data import CONTROL_FIELDS, Trajectories
-from .problem import coordinate_scales, object_coordinate_kinds
+from .problem import coordinate_kinds, coordinate_scales
 
 __all__ = ["synthetic_trajectories"]
 
@@ -65,7 +65,7 @@ def synthetic_trajectories(task: str, truth: dict[str, float], *, worlds: int = 
             controls[k].append(getattr(control, k).detach().clone())
     joint_q = torch.stack(qs).numpy()
     rng = np.random.default_rng(seed)
-    joint_q[..., nu:] = _noisy(joint_q[..., nu:], object_coordinate_kinds(env.sim), position_noise, angle_noise, rng)
+    joint_q = _noisy(joint_q, coordinate_kinds(env.sim), position_noise, angle_noise, rng)
     params = {name: np.full((steps + 1, worlds, 1), float(td["sim", "params", name][0, 0]))
               for name in known}
     config = {"name": task, **overrides}
