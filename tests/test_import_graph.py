@@ -10,7 +10,7 @@ Layers, bottom to top (a module may import its own layer and the ones below)::
     dexmots_rl.trajectories                        object-centric plans (a scene in, never a task name)
     dexmots_rl.envs                                torchrl envs, tasks (they read plans)
     dexmots_rl.objectives, recording               torchrl losses, MCAP episode recordings
-    dexmots_rl.algorithms                          trainers, evaluation, checkpoints
+    dexmots_rl.algorithms, sysid                   trainers, evaluation, checkpoints; system identification
     dexmots_rl.apps, viz                           console scripts, viewer and figures: the top
 
 The package's own ``__init__`` (the ``dexmots_rl`` facade) may import anything.
@@ -35,7 +35,7 @@ LAYERS = {  # the subpackages
     "trajectories": 3,
     "envs": 4,
     "objectives": 5, "recording": 5,
-    "algorithms": 6,
+    "algorithms": 6, "sysid": 6,
     "apps": 7, "viz": 7,
 }
 

@@ -10,12 +10,13 @@
     dexmots-bench train --task screw_claw [--algo ahac|shac] [--seeds 0 1 2 3] --json [hydra overrides ...]
     dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
     dexmots-bench gpu --out gpu_check.json   # every figure on one GPU in one JSON file (scripts/gpu_check.sh)
+    dexmots-bench sysid --task screw_claw --json [--counts 2 4] [--methods lbfgs gn fd-gn cmaes]  # identification
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`, :mod:`.bench_compile` and
-:mod:`.bench_gpu`; ``compile`` and
-``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
+:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`, :mod:`.bench_compile`,
+:mod:`.bench_gpu` and :mod:`.bench_sysid`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits
+non-zero when a kernel failed to compile.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import sys
 
 from ..envs import list_tasks
 from ._cli import errors_as_one_line
+from .bench_sysid import add_sysid_parser, format_sysid_table, run_sysid_bench
 from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, grad_bench_tasks, train_one
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
@@ -138,6 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides for the training, e.g. algo.horizon=16")
+    add_sysid_parser(sub)
     return parser
 
 
@@ -210,6 +213,8 @@ def _execute(args: argparse.Namespace) -> dict:
 
             return run_baselines(args.task, args.methods, args.iterations, args.num_envs, args.seed,
                                  args.torch_threads or None, args.overrides)
+        if args.bench == "sysid":
+            return run_sysid_bench(args)
         if args.bench == "plan":
             from .plan import run_plan_bench
 
@@ -247,7 +252,8 @@ def main(argv: list[str] | None = None) -> None:
 
             check_device(args.device)
         result = _execute(args)
-    print(json.dumps(result) if args.json or "rows" not in result else format_table(result))
+    table = format_sysid_table if args.bench == "sysid" else format_table
+    print(json.dumps(result) if args.json or "rows" not in result else table(result))
     if result.get("ok") is False:  # dexmots-bench compile: a kernel failed (named on stderr and in the JSON)
         sys.exit(1)
 
