@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 HYDRA_APPS = {"dexmots-train", "dexmots-table"}
-KEY_VALUE_APPS = {"dexmots-record"}
+KEY_VALUE_APPS = {"dexmots-record", "dexmots-sysid"}
 
 
 def console_scripts() -> dict[str, str]:

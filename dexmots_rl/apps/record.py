@@ -5,6 +5,7 @@
     dexmots-record task=screw_claw policy=random num_envs=8 steps=50 out=random.mcap
     dexmots-record checkpoint=runs/screw_claw_ahac_seed0 episodes=3 out=trained.mcap
     dexmots-record task=screw_claw episodes=20 live=true out=live.mcap     # + dexmots-view live.mcap --live
+    dexmots-record task=screw_claw task.damping_range=[0.5,0.5] out=knob.mcap  # a task config field
 
 Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),
 ``out`` (run.mcap), ``num_envs`` (4), ``steps`` (100; with a checkpoint, the task's episode length),
@@ -12,7 +13,8 @@ Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (scr
 screw_claw's grasp-and-twist, in torque space — and uniform random actions elsewhere; ``scripted``; or
 ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
 or run directory: its task config builds the env and its actor acts deterministically) and ``live``
-(rewrite the file after every episode). Every episode is a reset followed by ``steps`` steps in every
+(rewrite the file after every episode); ``task.<field>=<value>`` sets a field of the task's config (without a
+checkpoint; e.g. ``task.object_params=knob.json`` records the object with those parameters). Every episode is a reset followed by ``steps`` steps in every
 world; the summary is printed as one JSON line.
 
 Example:
@@ -32,6 +34,7 @@ import sys
 from pathlib import Path
 
 import torch
+import yaml
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..envs import ScriptedPolicy, make_env
@@ -47,12 +50,16 @@ DEFAULTS = {"task": "screw_claw", "episodes": 1, "out": "run.mcap", "num_envs": 
 
 def parse_overrides(tokens: list[str]) -> dict:
     """``["key=value", ...]`` -> the options dict (types from :data:`DEFAULTS`); unknown keys are errors."""
-    opts = dict(DEFAULTS)
+    opts = {**DEFAULTS, "task_overrides": {}}
     for token in tokens:
         key, sep, value = token.removeprefix("--").partition("=")
+        if sep and key.startswith("task.") and len(key) > 5:  # a task config field, its value read as YAML
+            opts["task_overrides"][key[5:]] = yaml.safe_load(value)
+            continue
         key = key.replace("-", "_")
         if not sep or key not in DEFAULTS:
-            raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)}")
+            raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)} "
+                             "or task.<field>")
         if key in ("episodes", "num_envs", "steps", "seed"):
             try:
                 opts[key] = int(value)
@@ -66,6 +73,9 @@ def parse_overrides(tokens: list[str]) -> dict:
             opts[key] = value.lower() in ("true", "1", "yes")
         else:
             opts[key] = value
+    if opts["checkpoint"] and opts["task_overrides"]:
+        raise ValueError(f"task.{next(iter(opts['task_overrides']))}: a checkpoint's own task config builds the env; "
+                         "task fields apply without a checkpoint")
     if opts["policy"] not in POLICIES:
         raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {opts['policy']!r}")
     return opts
@@ -131,7 +141,8 @@ def run(argv: list[str] | None = None) -> dict:
         # the scripted controller acts in torque space; a random policy explores the task's own actions
         action = {"action": "torque"} if opts["policy"] == "scripted" else {}
         env = make_env(opts["task"], num_envs=opts["num_envs"], device=opts["device"], differentiable=False,
-                       seed=opts["seed"], **({"max_episode_steps": opts["steps"]} if opts["steps"] else {}), **action)
+                       seed=opts["seed"], **({"max_episode_steps": opts["steps"]} if opts["steps"] else {}),
+                       **{**action, **opts["task_overrides"]})
     steps = opts["steps"] or env.base_env.max_episode_steps
     policy = _policy(opts, env)
     rewards, successes = [], []
