@@ -4,7 +4,7 @@ Gauss-Newton and CMA-ES, on the same synthetic recordings with the truth known.
 For each parameter count (the first ``k`` of ``--params``, default every parameter of the task's scene), seed
 and initial scale: a recording of ``--worlds`` x ``--steps`` (:func:`~dexmots_rl.sysid.synthetic_trajectories`,
 measurement noise ``--position-noise`` / ``--angle-noise``) is identified by every method from the truth scaled
-by ``--scales`` (a positive parameter multiplied, a rest position shifted by ``scale - 1`` rad or m). A method
+by ``--scales`` (a positive parameter multiplied, a rest position shifted by ``(scale - 1) / 2`` rad or m). A method
 *reaches* the error when every parameter is within ``--tolerance`` of the truth (relative, with a floor of 0.1 on
 the truth's magnitude); reported: the simulated world-steps (forward; reverse ones apart) and the process CPU
 seconds spent until then, and the final errors.
@@ -59,7 +59,7 @@ def _errors(values: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def _initial(names, truth: dict, scale: float, log_space: np.ndarray) -> dict:
-    return {n: truth[n] * scale if positive else truth[n] + (scale - 1.0) for n, positive in zip(names, log_space)}
+    return {n: truth[n] * scale if positive else truth[n] + 0.5 * (scale - 1.0) for n, positive in zip(names, log_space)}
 
 
 def run_sysid_bench(args) -> dict:

@@ -103,7 +103,7 @@ class ParamSpace:
             if positive and not x0[i] > 0:
                 raise ValueError(f"parameter {name!r} is positive and identified through its logarithm: its initial "
                                  f"guess must be > 0, got {x0[i]:g} (give init.{name}=<value>)")
-            default = (x0[i] / 100.0, x0[i] * 100.0) if positive else (x0[i] - 1.0, x0[i] + 1.0)
+            default = (x0[i] / 100.0, x0[i] * 100.0) if positive else (x0[i] - 2.0, x0[i] + 2.0)
             lo[i], hi[i] = bounds.get(name, default)
             if not (lo[i] <= x0[i] <= hi[i]) or (positive and lo[i] <= 0):
                 raise ValueError(f"bounds.{name}: ({lo[i]:g}, {hi[i]:g}) must hold the initial guess {x0[i]:g}"
