@@ -173,7 +173,7 @@ def test_random_bytes_for_a_checkpoint_are_one_line_naming_the_file(tmp_path):
 @pytest.mark.parametrize("objects, named", [(" , ", "names no object"), ("stapler_a,drawer_a", "'drawer_a'"),
                                             (["scissors_a", "stapler_a"], "'stapler_a'")])
 def test_task_objects_that_name_nothing_or_mix_topologies_are_one_error_naming_the_field(objects, named):
-    with pytest.raises(ValueError) as err:
-        make_env("stapler", num_envs=1, objects=objects, raw=True)
+    with pytest.raises(ValueError) as err:  # task=operate takes objects of any class, but one topology at a time
+        make_env("operate", num_envs=1, objects=objects, raw=True)
     msg = str(err.value)
     assert msg.startswith("task.objects") and named in msg and "scene.xml" not in msg and "\n" not in msg
