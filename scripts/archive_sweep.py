@@ -7,21 +7,22 @@ For every finished run (a ``metrics.json`` next to its ``config.yaml``) under ``
 ``config.yaml`` and ``metrics.json`` as they are and ``metrics.jsonl`` cut to the rows the learning curves read (each
 periodic evaluation and the training row before it), so a run takes a few kB instead of megabytes. That is what
 ``dexmots-table`` needs to skip a run (the whole config compared, the final evaluation) and to draw its curves; the
-sweep's ``runs.csv``, ``table.md`` and figures are copied too. Runs already in the archive are replaced.
+sweep's ``runs.csv`` (its ``run_dir`` column relative to the sweep, whatever machine wrote it), ``table.md`` and
+figures are copied too. Runs already in the archive are replaced.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import logging
 import shutil
 from pathlib import Path
 
+from dexmots_rl.apps.table_writer import sweep_relative
+
 log = logging.getLogger("archive_sweep")
-
-SWEEP_FILES = ("runs.csv", "table.md")
-
 
 def curve_rows(lines: list[str]) -> list[str]:
     """The rows of a ``metrics.jsonl`` that its learning curve reads: each evaluation row and the training row
@@ -53,6 +54,20 @@ def archive_run(run_dir: Path, out_dir: Path) -> None:
     (out_dir / "metrics.jsonl").write_text("".join(row + "\n" for row in curve_rows(lines)))
 
 
+def copy_runs_csv(src: Path, dst: Path) -> None:
+    """``src`` to ``dst`` with each ``run_dir`` relative to the sweep (an older sweep wrote absolute paths)."""
+    with open(src, newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames or [], list(reader)
+    if "run_dir" not in fields:
+        shutil.copyfile(src, dst)
+        return
+    with open(dst, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows({**row, "run_dir": sweep_relative(row["run_dir"]) if row["run_dir"] else ""} for row in rows)
+
+
 def archive(sweep: Path, out: Path) -> int:
     """Copy ``sweep``'s finished runs and tables into ``out``; returns the number of runs copied."""
     if not (sweep / "runs").is_dir():
@@ -64,9 +79,10 @@ def archive(sweep: Path, out: Path) -> int:
             continue
         archive_run(run_dir, out / run_dir.relative_to(sweep))
         copied += 1
-    for name in SWEEP_FILES:
-        if (sweep / name).is_file():
-            shutil.copyfile(sweep / name, out / name)
+    if (sweep / "runs.csv").is_file():
+        copy_runs_csv(sweep / "runs.csv", out / "runs.csv")
+    if (sweep / "table.md").is_file():
+        shutil.copyfile(sweep / "table.md", out / "table.md")
     for figure in sweep.glob("*.png"):
         shutil.copyfile(figure, out / figure.name)
     return copied

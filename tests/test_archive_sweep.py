@@ -42,6 +42,32 @@ def test_archive_keeps_finished_runs_without_checkpoints_and_only_the_curve_rows
     assert (out / "runs.csv").read_text() == "task\n"
 
 
+def test_the_archived_runs_csv_names_runs_relative_to_the_sweep(tmp_path):
+    """A sweep's runs.csv written elsewhere (absolute paths of that machine) is archived with each run_dir relative
+    to the sweep, and read back as the archive's own folders; a relative run_dir is kept."""
+    from dexmots_rl.apps.table_writer import read_csv
+
+    sweep, out = tmp_path / "sweep", tmp_path / "archive"
+    _run(sweep / "runs" / "stapler" / "dexmots" / "vi" / "seed0")
+    (sweep / "runs.csv").write_text("task,seed,run_dir\n"
+                                    "stapler,0,/home/someone/tables/suite/runs/stapler/dexmots/vi/seed0\n"
+                                    "stapler,1,runs/stapler/dexmots/vi/seed1\n")
+    archive_sweep.archive(sweep, out)
+    assert (out / "runs.csv").read_text().splitlines()[1:] == ["stapler,0,runs/stapler/dexmots/vi/seed0",
+                                                              "stapler,1,runs/stapler/dexmots/vi/seed1"]
+    assert [r["run_dir"] for r in read_csv(out / "runs.csv")] == [out / "runs/stapler/dexmots/vi/seed0",
+                                                                  out / "runs/stapler/dexmots/vi/seed1"]
+
+
+@pytest.mark.parametrize("path", sorted({*(ROOT / "results").glob("*/runs.csv"), *(ROOT / "docs").glob("**/*runs.csv")}))
+def test_the_committed_results_name_no_machine_path(path):
+    import csv
+
+    with open(path, newline="") as f:
+        run_dirs = [row["run_dir"] for row in csv.DictReader(f)]
+    assert run_dirs and all(d.startswith("runs/") for d in run_dirs), path
+
+
 def test_archived_runs_under_results_are_not_ignored_by_git():
     """results/<sweep>/runs/ holds the archived runs: git must keep them (every other runs/ folder is ignored)."""
     if shutil.which("git") is None or not (ROOT / ".git").exists():

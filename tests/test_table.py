@@ -149,6 +149,9 @@ def test_a_restarted_sweep_runs_only_what_is_not_finished(tmp_path, monkeypatch)
     assert [(r["method"], r["seed"], r["status"]) for r in rows] == [
         ("dexmots", 0, "finished"), ("dexmots", 1, "finished"), ("ppo", 0, "finished"), ("ppo", 1, "finished")]
     assert rows[0]["time_to_90_s"] == 20.0 and rows[0]["env_steps_to_90"] == 2000  # the first eval >= 90 %
+    # runs.csv names each run relative to the sweep (no path of this machine); read back, a path to its folder
+    assert str(tmp_path) not in (tmp_path / "sweep" / "runs.csv").read_text()
+    assert rows[0]["run_dir"].resolve() == (runs / "dexmots" / "vi" / "seed0").resolve()
     launched.clear()
     assert table.run_table(_table_cfg(tmp_path))["launched"] == 0 and launched == []
     # report_only: the table of what is finished, launching nothing

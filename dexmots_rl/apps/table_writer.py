@@ -38,7 +38,7 @@ from ..algorithms.budget import NO_TRAINING
 
 __all__ = ["CSV_FIELDS", "NO_TRAINING", "action_space_runs", "action_space_table", "budget_cell", "budget_clock",
            "budget_text", "learning_curve", "machines_text", "markdown_table", "quoted_table", "read_csv", "run_row",
-           "time_to_success", "time_to_success_table", "write_csv"]
+           "sweep_relative", "time_to_success", "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
               "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
@@ -100,7 +100,7 @@ def run_row(run, metrics: dict | None, status: str, threshold: float = 0.9) -> d
     ``run_dir``); ``metrics``: its final ``metrics.json`` (``None`` unless finished)."""
     row = {k: None for k in CSV_FIELDS}
     row.update(task=run.task, method=run.method, action=run.action, seed=run.seed, experiment=run.experiment,
-               status=status, run_dir=str(run.run_dir))
+               status=status, run_dir=sweep_relative(run.run_dir))
     if metrics is not None:
         budget = metrics.get("budget") or {}
         # a planner (algo=mpc) trains nothing: no time to 90 %, and the sweep's training budget did not apply
@@ -131,12 +131,23 @@ def write_csv(rows: Iterable[dict], path) -> Path:
     return path
 
 
+def sweep_relative(run_dir) -> str:
+    """A run directory as ``runs.csv`` keeps it: relative to its sweep directory
+    (``runs/<task>/<method>/<action>/seed<n>``), so a results archive names no folder of the machine that made
+    it; a directory outside that layout is kept as given."""
+    parts = Path(run_dir).parts
+    return "/".join(parts[-5:]) if len(parts) >= 5 and parts[-5] == "runs" else str(run_dir)
+
+
 def read_csv(path) -> list[dict]:
-    """``runs.csv`` back as rows with numbers typed and empty cells ``None``."""
+    """``runs.csv`` back as rows with numbers typed, empty cells ``None`` and ``run_dir`` a path: a relative one
+    (the sweep's layout) under the folder of ``path``, an absolute one (older sweeps) as it is."""
     rows = []
     with open(path, newline="") as f:
         for raw in csv.DictReader(f):
             row = {k: (v if v != "" else None) for k, v in raw.items()}
+            if row.get("run_dir") is not None:
+                row["run_dir"] = Path(path).parent / row["run_dir"]  # an absolute run_dir stays itself
             for k in _INTS:
                 if row.get(k) is not None:
                     row[k] = int(float(row[k]))
