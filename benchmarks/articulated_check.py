@@ -44,14 +44,12 @@ def measure(name: str, worlds: int, steps: int, repeats: int, clock: str = "wall
 
     from dexmots_rl.assets.hand_scene import hand_object_scene_xml
     from dexmots_rl.assets.objects import load_object
-    from dexmots_rl.sim import load_scene
-    from dexmots_rl.sim.articulated import ArticulatedSimulator
-    from dexmots_rl.sim.stepper import cpu_threads
+    from dexmots_rl.sim import cpu_threads, load_scene, make_simulator
 
     folder = Path(tempfile.mkdtemp())
     path = folder / "scene.xml"
     path.write_text(hand_object_scene_xml(load_object(name), folder))
-    sim = ArticulatedSimulator(load_scene(path), worlds)
+    sim = make_simulator(load_scene(path), num_worlds=worlds)
     q, qd = sim.initial_state()
     ctrl, params = sim.zero_control(), sim.default_params()
     start = time.perf_counter()

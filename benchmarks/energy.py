@@ -29,39 +29,25 @@ HAND_DROP = 0.2  # m: the most a link of the fixed-mount hand can fall
 FALLEN = 0.1  # m: a free object this far below its start has left the hand (peaks stop counting it)
 
 
-def _energy_function(sim, params):
-    """[N] object energy of a state ``(q, qd)`` of the full simulator state, for either simulator."""
-    from dexmots_rl.sim import ArticulatedSimulator
-    from dexmots_rl.sim.energy import scene_object_energy, tree_energy
-
-    nu = sim.nu
-    if isinstance(sim, ArticulatedSimulator):
-        tree = sim.tree
-        stiffness = torch.cat([params[f"{j}/stiffness"] for j in tree.joint_names], -1) if tree.num_parts else None
-        rest = torch.cat([params[f"{j}/rest"] for j in tree.joint_names], -1) if tree.num_parts else None
-        return lambda q, qd: tree_energy(tree, q[:, nu:], qd[:, nu:], stiffness, rest, sim.scene.gravity)
-    stiffness, rest = params.get("joint_stiffness"), params.get("joint_rest")
-    return lambda q, qd: scene_object_energy(sim.scene, q[:, nu:], qd[:, nu:], stiffness, rest)
-
-
 def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold: int = 0,
             substeps: int | None = None) -> dict:
     from dexmots_rl.envs import make_env
-    from dexmots_rl.sim import ArticulatedSimulator, Simulator
+    from dexmots_rl.sim import make_simulator
 
     env = make_env(task, num_envs=worlds, seed=seed, raw=True, differentiable=False, **overrides)
     sim = env.sim
     if substeps is not None:  # the same scene, contact law and env step, cut into more (or fewer) substeps
-        kind = ArticulatedSimulator if isinstance(sim, ArticulatedSimulator) else Simulator
-        sim = kind(sim.scene, worlds, contact=sim.contact, substeps=substeps, dt=sim.dt)
+        sim = make_simulator(sim.scene, num_worlds=worlds, contact=sim.contact, substeps=substeps, dt=sim.dt)
     td = env.reset()
     q, qd = td["sim", "joint_q"].clone(), td["sim", "joint_qd"].clone()
     params = {name: td["sim", "params", name] for name in sim.scene.param_names}
     step_params = params or sim.default_params()  # a free cube has no parameters
     nu = sim.nu
-    articulated = isinstance(sim, ArticulatedSimulator)
-    free = sim.tree.free if articulated else sim.scene.object_kind != 0
-    energy = _energy_function(sim, params)
+    free = sim.object_is_free
+
+    def energy(q, qd):
+        return sim.object_energy(q, qd, params)
+
     gear = torch.as_tensor(sim.scene.actuator_gear, dtype=sim.dtype)
     gen = torch.Generator().manual_seed(seed)
 

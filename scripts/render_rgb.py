@@ -4,7 +4,7 @@
 
 One figure per class, ``<out>/<class>.png``: the env's first state (hand open above the object) and the same
 state with the operated joint at the task's goal (90 % of its way), side by side, from the default camera
-(:class:`dexmots_rl.sim.mesh_render.MeshRenderer`). The script also checks that the palm, every hand link
+(:class:`dexmots_rl.sim.MeshRenderer`). The script also checks that the palm, every hand link
 that is in view, each of the object's bodies and the table cover pixels, and that the operated part moves.
 """
 
@@ -19,7 +19,7 @@ from PIL import Image
 from dexmots_rl.assets.objects import list_objects
 from dexmots_rl.envs import make_env
 from dexmots_rl.envs.pixels import RGBObservation, tile_images
-from dexmots_rl.sim.mesh_render import LABEL_TABLE
+from dexmots_rl.sim import LABEL_TABLE
 
 
 def render(name: str, out: Path, size: int) -> Path:

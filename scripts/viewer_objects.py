@@ -37,13 +37,12 @@ def figure(name: str, out: Path, steps: int, size: tuple[int, int]) -> dict:
     from dexmots_rl.assets.hand_scene import hand_object_scene_xml
     from dexmots_rl.assets.objects import load_object
     from dexmots_rl.recording import record_simulation
-    from dexmots_rl.sim import load_scene
-    from dexmots_rl.sim.articulated import ArticulatedSimulator
+    from dexmots_rl.sim import load_scene, make_simulator
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "scene.xml").write_text(hand_object_scene_xml(load_object(name), folder))
-        sim = ArticulatedSimulator(load_scene(folder / "scene.xml"), num_worlds=1)
+        sim = make_simulator(load_scene(folder / "scene.xml"), num_worlds=1)
         path = record_simulation(sim, steps, folder / f"{name}.mcap")
         shot = folder / "shot.png"
         result = _browser_check().run_check(path, out=shot, size=size, timeout=120, hide_panel=True)

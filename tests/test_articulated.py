@@ -11,8 +11,7 @@ from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import list_objects, load_object
 from dexmots_rl.envs.tasks.allegro.operate_object import HAND_CONTACT
 from dexmots_rl.quaternions import quat_to_matrix
-from dexmots_rl.sim import load_scene
-from dexmots_rl.sim.articulated import ArticulatedScene, ArticulatedSimulator
+from dexmots_rl.sim import ArticulatedScene, ArticulatedSimulator, load_scene
 from dexmots_rl.sim.energy import tree_energy, tree_kinematics
 
 # a sample of the library: a free base with a hinge, a fixed base with a slide, a free base lying flat

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from dexmots_rl.envs import make_env
-from dexmots_rl.sim.stepper import Trajectory
+from dexmots_rl.sim import Trajectory
 
 _DEPTH = [0]  # > 0 while guarded code runs
 

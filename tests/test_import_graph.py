@@ -14,6 +14,10 @@ Layers, bottom to top (a module may import its own layer and the ones below)::
     dexmots_rl.apps, viz                           console scripts, viewer and figures: the top
 
 The package's own ``__init__`` (the ``dexmots_rl`` facade) may import anything.
+
+``dexmots_rl.sim`` is a facade too: outside ``sim/`` (the package, the benchmarks, the scripts, the tests) code
+imports ``from dexmots_rl.sim import ...``, never a submodule of it; a test of a private internal is listed in
+``SIM_INTERNAL_TESTS`` with the reason.
 """
 
 from __future__ import annotations
@@ -27,6 +31,19 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "dexmots_rl"
+SIM = "dexmots_rl.sim"
+# tests that check a private part of the simulation core itself (not reachable through the facade), and why
+SIM_INTERNAL_TESTS = {
+    "test_articulated.py": "checks the energy of an object tree against MuJoCo's (the tree's kinematics and energy)",
+    "test_culling.py": "switches the box-object shortcut off to compare the step with and without it",
+    "test_compile.py": "compiles the renderer's kernel module on its own",
+    "test_dynamics.py": "checks how worlds are split into CPU blocks",
+    "test_hand_adjoints.py": "builds probe kernels on the contact functions (the SDF shape code)",
+    "test_sdf_object.py": "builds probe kernels on the contact functions (the SDF shape code)",
+    "test_mesh_sdf.py": "builds probe kernels on the finger contact's mesh SDF lookup",
+    "test_render.py": "checks the analytic renderer's capsules, labels and reach spheres",
+    "test_render_meshes.py": "checks the mesh renderer's labels and compiles its kernel module",
+}
 
 HELPERS = 0  # a module directly in dexmots_rl/ (not a subpackage)
 LAYERS = {  # the subpackages
@@ -133,6 +150,47 @@ def test_no_import_cycles_between_modules():
         if module not in state:
             visit(module, [])
     assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+def _sim_submodule_imports(path: Path) -> list[str]:
+    """``module`` for every import of a submodule of dexmots_rl.sim in ``path`` (absolute or, inside the package,
+    relative; ``from dexmots_rl.sim import <submodule>`` counts), read with ``ast``."""
+    modules = _modules()
+    inside = path.is_relative_to(PACKAGE)
+    name = _module_name(path) if inside else ""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module or ""
+            if node.level:
+                base = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+                module = ".".join(base[: len(base) - node.level + 1] + ([module] if module else []))
+            targets = [module] + [f"{module}.{alias.name}" for alias in node.names
+                                  if f"{module}.{alias.name}" in modules]
+        else:
+            continue
+        found += [t for t in targets if t.startswith(SIM + ".")]
+    return found
+
+
+def test_nothing_outside_sim_imports_a_sim_submodule():
+    files = [p for p in sorted(PACKAGE.rglob("*.py")) if not p.is_relative_to(PACKAGE / "sim")]
+    files += sorted((ROOT / "benchmarks").rglob("*.py")) + sorted((ROOT / "scripts").rglob("*.py"))
+    files += [p for p in sorted((ROOT / "tests").rglob("*.py")) if p.name not in SIM_INTERNAL_TESTS]
+    bad = [f"{p.relative_to(ROOT)} imports {m}" for p in files for m in _sim_submodule_imports(p)]
+    assert not bad, "import these from dexmots_rl.sim (its facade) instead:\n" + "\n".join(bad)
+
+
+def test_the_sim_check_sees_submodule_imports(tmp_path):
+    sub = sorted(m for m in _modules() if m.startswith(SIM + "."))[0]  # any submodule
+    leaf = sub.rpartition(".")[2]
+    probe = tmp_path / "probe.py"
+    probe.write_text(f"from {sub} import x\nfrom dexmots_rl.sim import {leaf}\nimport {sub}\n"
+                     "from dexmots_rl.sim import load_scene\n")
+    assert _sim_submodule_imports(probe) == [sub, sub, sub]
+    assert all((ROOT / "tests" / name).is_file() for name in SIM_INTERNAL_TESTS)  # the list names real tests
 
 
 def test_the_graph_sees_imports_inside_functions():

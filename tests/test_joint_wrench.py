@@ -9,7 +9,7 @@ import torch
 
 from dexmots_rl.envs.object_pregrasp import operate_pregrasp_path
 from dexmots_rl.envs.pregrasp import load_pregrasps
-from dexmots_rl.sim.articulated import ArticulatedSimulator
+from dexmots_rl.sim import ArticulatedSimulator
 
 from test_articulated import _scene
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from dexmots_rl.assets.objects import Geom, Joint, ObjectAsset, Part, load_object
-from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
+from dexmots_rl.sim import ObjectSimulator, load_object_tree
 
 
 def _tree_object(base: str) -> ObjectAsset:

@@ -9,9 +9,7 @@ import torch
 
 from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import ObjectError, list_objects, load_object, object_split
-from dexmots_rl.sim import AssetError, load_scene
-from dexmots_rl.sim.articulated import ArticulatedSimulator
-from dexmots_rl.sim.object_variants import load_variants
+from dexmots_rl.sim import ArticulatedSimulator, AssetError, load_scene, load_variants
 
 PAIR = ["spray_bottle_a", "spray_bottle_b"]  # one class: the same topology, other sizes, ranges and springs
 

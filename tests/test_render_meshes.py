@@ -8,9 +8,8 @@ import torch
 from dexmots_rl.assets.objects import list_objects
 from dexmots_rl.envs import make_env
 from dexmots_rl.envs.tasks.allegro.operate_object import build_scene
-from dexmots_rl.sim.articulated import ArticulatedSimulator
-from dexmots_rl.sim.mesh_render import FIRST_BODY_LABEL, LABEL_TABLE, MeshRenderer, make_renderer
-from dexmots_rl.sim.render import Renderer
+from dexmots_rl.sim import LABEL_TABLE, ArticulatedSimulator, MeshRenderer, Renderer, make_renderer
+from dexmots_rl.sim.mesh_render import FIRST_BODY_LABEL
 
 H = W = 48
 FIRST_OF_CLASS = list({cls: name for name, cls in reversed(list_objects())}.values())
@@ -93,8 +92,8 @@ def test_bad_inputs_and_renderer_choice(scene, claw_scene):
         MeshRenderer(sim.scene, 0, 8, geometry=r.geometry)
     with pytest.raises(ValueError, match="cuda:7"):
         MeshRenderer(sim.scene, 8, 8, device="cuda:7", geometry=r.geometry)
-    assert isinstance(make_renderer(sim.scene, 8, 8), MeshRenderer)
-    assert type(make_renderer(claw_scene, 8, 8)) is Renderer
+    assert isinstance(make_renderer(sim.scene, height=8, width=8), MeshRenderer)
+    assert type(make_renderer(claw_scene, height=8, width=8)) is Renderer
 
 
 def test_make_env_operate_obs_rgb():

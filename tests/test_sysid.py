@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dexmots_rl.envs import make_env
-from dexmots_rl.sim.articulated import ArticulatedSimulator
+from dexmots_rl.sim import ArticulatedSimulator
 from dexmots_rl.sysid import ShootingProblem, identify, load_trajectories, save_npz, synthetic_trajectories
 from dexmots_rl.apps.sysid import run as sysid_cli
 

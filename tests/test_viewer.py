@@ -146,8 +146,7 @@ def articulated_recording(tmp_path_factory):
     from dexmots_rl.assets.hand_scene import hand_object_scene_xml
     from dexmots_rl.assets.objects import load_object
     from dexmots_rl.recording import record_simulation
-    from dexmots_rl.sim import load_scene
-    from dexmots_rl.sim.articulated import ArticulatedSimulator
+    from dexmots_rl.sim import ArticulatedSimulator, load_scene
 
     folder = tmp_path_factory.mktemp("scissors")
     (folder / "scene.xml").write_text(hand_object_scene_xml(load_object("scissors_a"), folder))

@@ -55,7 +55,7 @@ from torchrl.data import Composite, Unbounded
 from ..envs.mirror import SignedPermutation, reflect_mirrored, sized
 from ..envs.transforms import StateTransform
 from ..quaternions import quat_angle
-from ..sim.object_model import SLIDE
+from ..sim import SLIDE
 from . import ppo
 from .common import policy_from_data
 

@@ -155,7 +155,7 @@ def _check(cfg, fields: dict, prefix: str) -> None:
 
 
 def _check_device(device) -> None:
-    from ..sim.simulator import check_device
+    from ..sim import check_device
 
     try:
         check_device(str(device))

@@ -248,7 +248,7 @@ def main(argv: list[str] | None = None) -> None:
     with errors_as_one_line("dexmots-bench"):  # bad input (a GPU this machine lacks) and a full disk: one line
         # a GPU this machine lacks: before any work (compile builds for a CUDA arch without one)
         if getattr(args, "device", "cpu") != "cpu" and not (args.bench == "compile" and args.arch):
-            from ..sim.simulator import check_device
+            from ..sim import check_device
 
             check_device(args.device)
         result = _execute(args)

@@ -35,21 +35,11 @@ def compile_task(task: str, device: str = "cuda", arch: int | None = 90, dtypes=
                  render: bool = True) -> dict:
     """Compile one task's kernels for each float type (``arch`` None: this machine's GPU) and, with
     ``render``, the renderer's; the result dict of one task."""
-    from ..sim import Simulator
-    from ..sim.aot import compile_kernels, compile_mesh_renderer, compile_renderer
-    from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
+    from ..sim import compile_scene
 
     start = time.perf_counter()
-    scene, law = task_scene(task), task_contact(task)
-    rows = []
-    for name in dtypes:
-        # a one-world CPU simulator builds the task's kernel namespace (nothing is compiled or launched)
-        simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
-        sim = simulator(scene, 1, device="cpu", dtype=DTYPES[name], contact=law)
-        rows += [dict(row, dtype=name) for row in compile_kernels(sim, device, arch)]
-    if render:  # an articulated object's scene is drawn by the mesh renderer, the others by the analytic one
-        compile_one = compile_mesh_renderer if isinstance(scene, ArticulatedScene) else compile_renderer
-        rows.append(dict(compile_one(device, arch), dtype="float32"))
+    rows = compile_scene(task_scene(task), device=device, arch=arch, dtypes=[DTYPES[name] for name in dtypes],
+                         contact=task_contact(task), render=render)
     for row in rows:
         if row["ok"]:
             log.info("%s %s %s: %.1f s%s", task, row["dtype"], row["kernel"], row["seconds"],

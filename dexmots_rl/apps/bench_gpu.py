@@ -48,7 +48,7 @@ AGREE_TOLERANCE = 1e-6  # largest |q_cpu - q_device| (rad, m) after the rollout,
 
 def machine_info(device: str) -> dict:
     """Versions and hardware of this run (GPU name, driver and CUDA versions on a CUDA device)."""
-    from ..sim.aot import warp_versions
+    from ..sim import warp_versions
 
     info = {"device": device_name(device), "torch": torch.__version__, "torch_cuda": torch.version.cuda,
             **warp_versions(), **provenance(),
@@ -64,7 +64,7 @@ def run_agreement(task: str = "screw_claw", device: str = "cuda", steps: int = 1
     """Step the same worlds on the CPU and on ``device`` (float64, the task's open pose, the closing action
     plus uniform noise drawn on the CPU) and compare the joint states: the largest absolute difference
     after 1, 10 and every ``steps`` steps."""
-    from ..sim import Control, Simulator
+    from ..sim import Control, make_simulator
     from ..envs import task_contact
 
     setup, (scene, _) = bench_task(task), load_task_scene(task)
@@ -75,7 +75,7 @@ def run_agreement(task: str = "screw_claw", device: str = "cuda", steps: int = 1
     torques = (torch.tensor(setup.close_action, dtype=torch.float64) + noise).clamp(-1, 1) * gear
     trajectories = []
     for dev in ("cpu", device):
-        sim = Simulator(scene, num_envs, device=dev, dtype=torch.float64, contact=task_contact(task))
+        sim = make_simulator(scene, num_worlds=num_envs, device=dev, dtype=torch.float64, contact=task_contact(task))
         opts = dict(dtype=torch.float64, device=sim.torch_device)
         q = torch.tensor(setup.open_q, **opts).expand(num_envs, sim.nq).contiguous()
         qd = torch.zeros(num_envs, sim.nv, **opts)
@@ -135,7 +135,7 @@ def run_gpu_check(device: str = "cuda", tasks=("screw_claw", "allegro_rotate", "
                   train_overrides=(), eval_episodes: int = 100, compile_jobs: int | None = None,
                   run_dir: str = "runs/gpu_check", out: str | None = "gpu_check.json") -> dict:
     """The whole check (see the module docstring); returns the dict also written to ``out``."""
-    from ..sim.simulator import check_device
+    from ..sim import check_device
     from .bench_compile import run_compile
     from .bench_grad import run_grad
     from .bench_pipeline import run_pipeline

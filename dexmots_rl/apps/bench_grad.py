@@ -71,13 +71,11 @@ class LossTarget:
     @classmethod
     def of(cls, sim, poses) -> "LossTarget":
         """The target of ``poses`` (:class:`~dexmots_rl.envs.BenchPoses`) in ``sim``'s state layout."""
-        from ..sim import ArticulatedSimulator
-
         nu, j = sim.nu, poses.joint
         goal = GOAL_ANGLE if poses.goal is None else poses.goal
         speed = GOAL_SPEED if poses.goal_speed is None else poses.goal_speed
-        if isinstance(sim, ArticulatedSimulator):  # q: hand, then the base's pose if free, then the joints
-            free = int(sim.tree.free)
+        if sim.object_tree is not None:  # q: hand, then the base's pose if free, then the joints
+            free = int(sim.object_tree.free)
             tolerance = poses.base_tolerance if free else None
             # body_pose: the hand's links, the base, then one body per joint
             return cls(nu + 7 * free + j, nu + 6 * free + j, goal, speed, nu + 1 + j, None, tolerance)
@@ -123,12 +121,6 @@ def loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, target: LossTarge
     return running / len(actions) + angle_err, torch.stack(forces)
 
 
-def _simulator(scene):
-    from ..sim import ArticulatedScene, ArticulatedSimulator, Simulator
-
-    return ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
-
-
 def grad_row(scene, poses, horizon: int, contact: bool, eps: float, num_entries: int, floor_rel: float,
              generator: torch.Generator, device: str = "cpu", loss_kind: str = "pose", draws: int = 8,
              law=None) -> dict:
@@ -136,10 +128,12 @@ def grad_row(scene, poses, horizon: int, contact: bool, eps: float, num_entries:
     (:class:`~dexmots_rl.envs.BenchPoses`), over ``draws`` random action sequences simulated side by side:
     draw d owns worlds ``d * (1 + 2k) ...`` (nominal, then +eps/-eps per checked entry). ``law``: the task's
     ContactParams (None: the defaults, the claw's)."""
+    from ..sim import make_simulator
+
     nu = scene.num_hand_dofs
     k = min(num_entries, horizon * nu)
     per_draw = 1 + 2 * k
-    sim = _simulator(scene)(scene, draws * per_draw, device=device, dtype=torch.float64, contact=law)
+    sim = make_simulator(scene, num_worlds=draws * per_draw, device=device, dtype=torch.float64, contact=law)
     target = LossTarget.of(sim, poses)
     opts = dict(dtype=torch.float64, device=sim.torch_device)
     action = poses.squeeze_action if contact else poses.release_action or (0.0,) * nu

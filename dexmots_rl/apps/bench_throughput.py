@@ -14,7 +14,7 @@ step is ``substeps`` physics steps of the MJCF's timestep.
   the calling thread alone for one world), ``nstep = substeps * chunk_steps``.
 
 With ``obs="rgb"`` our ``fwd``/``fwdbwd`` chunks also render a 64x64 image of every world after each
-step (:func:`dexmots_rl.sim.mesh_render.make_renderer`); MuJoCo's rows stay physics only.
+step (:func:`dexmots_rl.sim.make_renderer`); MuJoCo's rows stay physics only.
 """
 
 from __future__ import annotations
@@ -38,15 +38,15 @@ class SimBench:
 
     def __init__(self, scene, task, num_envs: int, device: str, substeps: int, settle_steps: int,
                  chunk_steps: int, obs: str = "state", contact=None):
-        from ..sim import Control, Simulator
+        from ..sim import Control, make_simulator
 
-        self.sim = sim = Simulator(scene, num_envs, device=device, substeps=substeps, contact=contact)
+        self.sim = sim = make_simulator(scene, num_worlds=num_envs, device=device, substeps=substeps, contact=contact)
         self.chunk_steps = chunk_steps
         self.renderer = None
         if obs == "rgb":
-            from ..sim.mesh_render import make_renderer
+            from ..sim import make_renderer
 
-            self.renderer = make_renderer(scene, 64, 64, device=device)
+            self.renderer = make_renderer(scene, height=64, width=64, device=device)
         opts = dict(dtype=sim.dtype, device=sim.torch_device)
         gear = torch.as_tensor(scene.actuator_gear, **opts)
         tau = (torch.tensor(task.close_action, **opts) * gear).expand(num_envs, sim.nu).contiguous()
@@ -93,9 +93,7 @@ class SimBench:
 
     def _taped_step(self):
         """A taped trajectory of one env step from the settled state, and all-ones output adjoints."""
-        from ..sim.stepper import Trajectory
-
-        traj = Trajectory(self.sim)
+        traj = self.sim.new_trajectory(save=True)
         c = self.control
         traj.load(self.q0, self.qd0, [c.tau, c.q_target, c.kp, c.kd, self.sim.pack_params(self.params),
                                       self.sim._zeros(self.sim.num_worlds, 6)])

@@ -22,7 +22,7 @@ import math
 
 import torch
 
-from ..sim import Control, Simulator
+from ..sim import Control, HandSimulator
 
 __all__ = ["ACTION_TYPES", "ActionMap", "validate_action"]
 
@@ -61,7 +61,7 @@ class ActionMap:
         (8, (2, 4))
     """
 
-    def __init__(self, sim: Simulator, kind: str = "torque", stiffness_frequency: float = 20.0, center=None):
+    def __init__(self, sim: HandSimulator, kind: str = "torque", stiffness_frequency: float = 20.0, center=None):
         if kind not in ACTION_TYPES:
             raise ValueError(f"action type {kind!r} is unknown; known: {', '.join(ACTION_TYPES)}")
         self.kind, self.num_worlds, self.nu = kind, sim.num_worlds, sim.nu

@@ -25,9 +25,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from ..sim import SceneModel, Simulator
-from ..sim.articulated import ArticulatedScene, ArticulatedSimulator
-from ..sim.simulator import check_device
+from ..sim import SceneModel, check_device, make_simulator
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
 from .demos import demo_path, read_demo
@@ -108,10 +106,9 @@ class DexEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         if scene is None:
             scene = self.task_scene(config)
-        # an articulated object (a base with moving parts on a table) has its own simulator, same interface
-        simulator = ArticulatedSimulator if isinstance(scene, ArticulatedScene) else Simulator
-        self.sim = simulator(scene, num_envs, device=str(device), dtype=dtype, substeps=config.substeps,
-                             contact=self.contact_params if contact is None else contact, adjoint_clip=adjoint_clip)
+        self.sim = make_simulator(scene, num_worlds=num_envs, device=device, dtype=dtype, substeps=config.substeps,
+                                  contact=self.contact_params if contact is None else contact,
+                                  adjoint_clip=adjoint_clip)
         self.sync_free = device.type == "cuda"  # see the class docstring
         self.num_envs, self.differentiable, self.max_episode_steps = num_envs, differentiable, config.max_episode_steps
         self.dtype = dtype

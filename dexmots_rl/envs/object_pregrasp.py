@@ -273,7 +273,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     import torch
     from tqdm.auto import tqdm
 
-    from ..sim import ArticulatedSimulator
+    from ..sim import make_simulator
 
     model = mujoco.MjModel.from_xml_path(str(scene.path))
     data = mujoco.MjData(model)
@@ -310,7 +310,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
         poses[c] = q[:nu]
 
     # settle: a stiff hold of each IK pose with the object held where it stands; contact pushes links out
-    sim = ArticulatedSimulator(scene, num_worlds=candidates, contact=contact)
+    sim = make_simulator(scene, num_worlds=candidates, contact=contact)
     joint_q, joint_qd = sim.initial_state()
     joint_q[:, :nu] = torch.as_tensor(poses, dtype=joint_q.dtype)
     rest_q, rest_qd = joint_q[:, nu:].clone(), joint_qd[:, nu:].clone()

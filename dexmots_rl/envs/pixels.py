@@ -1,9 +1,9 @@
 """RGB observations: a torchrl transform rendering every world with the scene's ray caster.
 
-The renderer is :func:`dexmots_rl.sim.mesh_render.make_renderer`'s: the meshes of every hand link, the palm,
+The renderer is :func:`dexmots_rl.sim.make_renderer`'s: the meshes of every hand link, the palm,
 each object part and the table for a scene with an articulated object (task ``operate``,
-:class:`~dexmots_rl.sim.mesh_render.MeshRenderer`), analytic shapes for the knob and cube scenes
-(:class:`~dexmots_rl.sim.render.Renderer`).
+:class:`~dexmots_rl.sim.MeshRenderer`), analytic shapes for the knob and cube scenes
+(:class:`~dexmots_rl.sim.Renderer`).
 
 :class:`RGBObservation` reads the state ``("sim", "joint_q")`` after every reset and step, renders the
 worlds from a fixed camera (one warp launch, a thread per pixel per world) and writes ``"pixels"``,
@@ -50,9 +50,8 @@ class RGBObservation(StateTransform):
 
     Args:
         height, width: image size in pixels.
-        camera: a :class:`dexmots_rl.sim.render.Camera`; default: framed on the hand's reach and the
-            object (:func:`dexmots_rl.sim.render.default_camera`, or for an articulated object
-            :class:`~dexmots_rl.sim.mesh_render.MeshRenderer`'s).
+        camera: a :class:`dexmots_rl.sim.Camera`; default: framed on the hand's reach and the
+            object (the :func:`dexmots_rl.sim.make_renderer` renderer's default).
         sim: the :class:`~dexmots_rl.sim.Simulator` to render; default: the parent env's ``.sim``
             (needed only when the transform is used outside an env).
         out_key: where the images go.
@@ -79,11 +78,11 @@ class RGBObservation(StateTransform):
     @property
     def renderer(self):
         if self._renderer is None:
-            from ..sim.mesh_render import make_renderer
+            from ..sim import make_renderer
 
             sim = self.sim
             base = getattr(self.parent, "base_env", None) if self.parent is not None else None
-            self._renderer = make_renderer(sim.scene, self.height, self.width, camera=self.camera,
+            self._renderer = make_renderer(sim.scene, height=self.height, width=self.width, camera=self.camera,
                                            device=sim.torch_device, asset=getattr(base, "object_asset", None))
             log.info("RGBObservation: %dx%d images, camera %s", self.height, self.width, self._renderer.camera)
         return self._renderer

@@ -61,7 +61,7 @@ def _task_name(base) -> str:
 
 class EpisodeRecorder:
     """Record frames of ``env`` (a ``DexEnv``, a ``TransformedEnv`` over one, or a simulator: a
-    :class:`~dexmots_rl.sim.Simulator` or :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`) to ``path``;
+    :class:`~dexmots_rl.sim.Simulator` or :class:`~dexmots_rl.sim.ArticulatedSimulator`) to ``path``;
     see the module docstring.
 
     ``record(td)`` takes one frame: the TensorDict ``env.reset()`` returns, or the ``"next"`` entry of a

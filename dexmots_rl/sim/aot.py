@@ -8,9 +8,9 @@ this machine's CPU or GPU loads, compiled and loaded exactly as a run does (a ru
 
 :func:`compile_kernels` compiles the modules of a :class:`~dexmots_rl.sim.Simulator`'s kernels (the
 substep and the observation, specialised for its scene and float type), :func:`compile_renderer` and
-:func:`compile_mesh_renderer` the renderers'; one row per module says how long it took, whether the cache
-already had it, and, on failure, the compiler's message (NVRTC prints its log on the process's stderr, which
-is captured at the file-descriptor level for the duration of the build).
+:func:`compile_mesh_renderer` the renderers', :func:`compile_scene` all of a scene's; one row per module says how
+long it took, whether the cache already had it, and, on failure, the compiler's message (NVRTC prints its log on
+the process's stderr, which is captured at the file-descriptor level for the duration of the build).
 """
 
 from __future__ import annotations
@@ -21,9 +21,11 @@ import sys
 import tempfile
 import time
 
+import torch
 import warp as wp
 
-__all__ = ["compile_kernels", "compile_renderer", "compile_mesh_renderer", "simulator_kernels", "warp_versions"]
+__all__ = ["compile_scene", "compile_kernels", "compile_renderer", "compile_mesh_renderer", "simulator_kernels",
+           "warp_versions"]
 
 
 def warp_versions() -> dict:
@@ -104,6 +106,27 @@ def compile_kernels(sim, device: str = "cuda", arch: int | None = 90) -> list[di
         modules.setdefault(id(kernel.module), (kernel.module, []))[1].append(name)
     return [_compile_module(module, "+".join(names), device, arch if device == "cuda" else None)
             for module, names in modules.values()]
+
+
+def compile_scene(scene, *, device: str = "cuda", arch: int | None = 90, dtypes=(torch.float32,), contact=None,
+                  render: bool = True) -> list[dict]:
+    """Compile the kernels that simulate ``scene`` (a :func:`~dexmots_rl.sim.load_scene` scene) in each float type
+    of ``dtypes`` with the contact law ``contact`` and, with ``render``, the kernels of the renderer that draws it
+    (:func:`~dexmots_rl.sim.make_renderer`'s); :func:`compile_kernels`' rows, each with its ``dtype``
+    (``"float32"``...)."""
+    from .articulated_scene import ArticulatedScene
+    from .factory import make_simulator
+
+    rows = []
+    for dtype in dtypes:
+        # a one-world CPU simulator builds the scene's kernel namespace (nothing is compiled or launched)
+        sim = make_simulator(scene, num_worlds=1, device="cpu", dtype=dtype, contact=contact)
+        name = str(dtype).removeprefix("torch.")
+        rows += [dict(row, dtype=name) for row in compile_kernels(sim, device, arch)]
+    if render:  # an articulated object's scene is drawn by the mesh renderer, the others by the analytic one
+        compile_one = compile_mesh_renderer if isinstance(scene, ArticulatedScene) else compile_renderer
+        rows.append(dict(compile_one(device, arch), dtype="float32"))
+    return rows
 
 
 def compile_renderer(device: str = "cuda", arch: int | None = 90) -> dict:

@@ -21,16 +21,16 @@ from __future__ import annotations
 import numpy as np
 import torch
 import warp as wp
-from tensordict import TensorDict
 
 from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from .articulated_stepper import ArticulatedTrajectory
+from .energy import tree_energy
 from .hand_kernels import build_hand_kernels
 from .object_model import MAX_SAMPLES
 from .palm_object_kernels import build_palm_object_kernels
+from .hand_sim import HandSimulator, StepOutput
 from .model import ContactParams
 from .object_sim import ObjectSimulator, TableContact
-from .simulator import StepOutput
 
 __all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", "ObjectGeoms", "object_geoms"]
 
@@ -49,28 +49,34 @@ class ArticulatedStepOutput(StepOutput):
     names = StepOutput.names + ("joint_wrench",)
 
 
-class ArticulatedSimulator(ObjectSimulator):
-    """Many worlds of a hand and an articulated object (see the module docstring); the object's arrays and
-    parameters are :class:`~dexmots_rl.sim.object_sim.ObjectSimulator`'s."""
+class ArticulatedSimulator(HandSimulator):
+    """Many worlds of a hand and an articulated object (see the module docstring; the options are
+    :class:`~dexmots_rl.sim.hand_sim.HandSimulator`'s, plus the ``table``'s contact). The object's kernels, model
+    and variants are those of :attr:`object_sim`, the object alone (an
+    :class:`~dexmots_rl.sim.object_sim.ObjectSimulator` of the same worlds); the hand's and the palm's are this
+    simulator's own."""
 
-    def __init__(self, scene: ArticulatedScene, num_worlds: int, device: str = "cpu",
+    output_type = ArticulatedStepOutput
+
+    def __init__(self, scene: ArticulatedScene, num_worlds: int, *, device: str = "cpu",
                  dtype: torch.dtype = torch.float32, substeps: int = 16, dt: float | None = None,
                  contact: ContactParams | None = None, table: TableContact | None = None,
                  adjoint_clip: float | None = None):
-        if adjoint_clip is not None and not adjoint_clip >= 1.0:
-            raise ValueError(f"adjoint_clip must be None or >= 1 (a multiple of the median world), got {adjoint_clip}")
-        sub_dt = scene.timestep if dt is None else dt / substeps
-        super().__init__(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps, sub_dt=sub_dt,
-                         table=table, gravity=scene.gravity, variants=scene.variant_trees)
-        self.scene = scene
-        self.contact = contact or ContactParams()
-        # Simulator's outlier-world gradient clip (a training option), applied in SimStep.backward
-        self.adjoint_clip = adjoint_clip
-        self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)
         if (np.asarray(scene.joint_type) != 0).any():
             raise ValueError("an articulated-object scene's hand joints must all be hinges")
+        super().__init__(scene, num_worlds, device=device, dtype=dtype, substeps=substeps, dt=dt, contact=contact,
+                         adjoint_clip=adjoint_clip)
+        self.object_sim = ObjectSimulator(scene.tree, num_worlds, device=device, dtype=dtype, substeps=substeps,
+                                          sub_dt=self.sub_dt, table=table, gravity=scene.gravity,
+                                          variants=scene.variant_trees)
+        self.tree, self.variants, self.table = scene.tree, self.object_sim.variants, self.object_sim.table
+        self.kernels, self.model = self.object_sim.kernels, self.object_sim.model  # the object tree's
         self.nu = scene.num_hand_dofs
+        self.nq, self.nv = self.nu + scene.tree.nq, self.nu + scene.tree.nv
         self.num_bodies = self.nu + scene.tree.num_bodies
+        # the reverse pass's buffers, shared by every trajectory of this simulator (made at the first backward pass;
+        # ArticulatedTrajectory.backward documents them)
+        self._adjoint_buffers = None
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
                                                scene.points_per_link, scene.tree.num_bodies,
                                                scene.variant_geoms[0].kind.shape[1])
@@ -78,26 +84,8 @@ class ArticulatedSimulator(ObjectSimulator):
         self.palm_kernels, self.palm_model = self._make_palm()
 
     @property
-    def clipped_adjoints(self) -> int:
-        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down (as :class:`~dexmots_rl.sim.Simulator`)."""
-        return int(self._clipped)
-
-    @property
-    def nq(self) -> int:
-        return self.nu + self.tree.nq
-
-    @property
     def num_variants(self) -> int:
         return len(self.variants)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return self.scene.param_names
-
-    def default_params(self) -> TensorDict:
-        values = {n: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
-                  for n, v in self.scene.default_param_values().items()}
-        return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
 
     def variant_of(self, params, n: int | None = None) -> torch.Tensor:
         """[n] int32: each world's object variant in ``params`` (zeros with one variant; ``n`` defaults to the
@@ -112,10 +100,6 @@ class ArticulatedSimulator(ObjectSimulator):
             raise ValueError(f"params 'variant' must hold whole numbers in [0, {self.num_variants}), got "
                              f"{value.min().item()}..{value.max().item()}")
         return index.to(torch.int32)
-
-    @property
-    def nv(self) -> int:
-        return self.nu + self.tree.nv
 
     def _make_palm(self):
         """The palm's kernel and model (None, None when the scene's palm does not collide with the object)."""
@@ -174,32 +158,6 @@ class ArticulatedSimulator(ObjectSimulator):
         m.mu, m.v_slip = wdt(c.friction), wdt(c.slip_velocity)
         return m
 
-    # ---------------------------------------------------------------------------------------- state
-    def initial_state(self) -> tuple[torch.Tensor, torch.Tensor]:
-        q = self._zeros(self.num_worlds, self.nq)
-        q[:, self.nu:] = torch.as_tensor(self.tree.q0, dtype=self.dtype)
-        return q, self._zeros(self.num_worlds, self.nv)
-
-    def zero_control(self):
-        from .simulator import Control
-
-        z = self._zeros(self.num_worlds, self.nu)
-        return Control(z, z, z, z)
-
-    def step(self, joint_q, joint_qd, control, params) -> ArticulatedStepOutput:
-        """One env step; returns an :class:`ArticulatedStepOutput` (the hand's contact wrench on the object
-        is summed over its bodies, torque about the base origin; its force on each joint is ``joint_wrench``)."""
-        from .simulator import SimStep
-
-        n = joint_q.shape[0]
-        if n != self.num_worlds:
-            raise ValueError(f"joint_q has {n} worlds, the simulator was built for {self.num_worlds}")
-        ext = control.object_wrench
-        ext = self._zeros(n, 6) if ext is None else ext
-        self.variant_of(params)  # checked here: the kernels index with it
-        return ArticulatedStepOutput(SimStep.apply(self, joint_q, joint_qd, control.tau, control.q_target,
-                                                   control.kp, control.kd, self.pack_params(params), ext))
-
     def observe(self, joint_q, joint_qd=None, params=None):
         """Body poses [N, B, 7] (hand links, then the object's bodies) and fingertips [N, F, 3]; ``params``
         (their ``"variant"``) says each world's object variant (default: 0)."""
@@ -219,28 +177,28 @@ class ArticulatedSimulator(ObjectSimulator):
                       outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
 
+    def check_params(self, params) -> None:
+        self.variant_of(params)  # the kernels index with it
+
     @property
-    def num_params_packed(self) -> int:
+    def num_params(self) -> int:
         """Columns of :meth:`pack_params`' result."""
         return len(self.param_names) or 4
 
-    def _replay(self, inputs: list[torch.Tensor]) -> list[torch.Tensor]:
-        """A gradient-free step on one persistent trajectory (no adjoint buffers)."""
-        if getattr(self, "_fast", None) is None:
-            self._fast = ArticulatedTrajectory(self, save=False)
-        self._fast.load(inputs[0], inputs[1], inputs[2:])
-        self._fast.forward()
-        return self._fast.outputs()
+    def new_trajectory(self, save: bool) -> ArticulatedTrajectory:
+        return ArticulatedTrajectory(self, save=save)
 
-    def _take_trajectory(self) -> tuple[ArticulatedTrajectory, int]:
-        """A trajectory with adjoint buffers from the pool and its lease: hand both back with
-        :meth:`_return_trajectory` after the backward pass, or when the step's graph is dropped without one."""
-        pool = self.__dict__.setdefault("_pool", [])
-        traj = pool.pop() if pool else ArticulatedTrajectory(self)
-        traj.lease += 1
-        return traj, traj.lease
+    @property
+    def object_tree(self):
+        return self.tree
 
-    def _return_trajectory(self, traj: ArticulatedTrajectory, lease: int) -> None:
-        if traj.lease == lease:  # not returned already for this lease (backward, then the graph's release)
-            traj.lease += 1
-            self._pool.append(traj)
+    @property
+    def object_is_free(self) -> bool:
+        return bool(self.tree.free)
+
+    def object_energy(self, joint_q, joint_qd, params=None) -> torch.Tensor:
+        params = self.default_params() if params is None else params
+        tree, nu = self.tree, self.nu
+        stiffness = torch.cat([params[f"{j}/stiffness"] for j in tree.joint_names], -1) if tree.num_parts else None
+        rest = torch.cat([params[f"{j}/rest"] for j in tree.joint_names], -1) if tree.num_parts else None
+        return tree_energy(tree, joint_q[:, nu:], joint_qd[:, nu:], stiffness, rest, self.scene.gravity)

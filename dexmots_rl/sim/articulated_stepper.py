@@ -16,12 +16,33 @@ marks the others), and only each body's nearest geom is differentiated (hand_ker
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 import warp as wp
 
 from .stepper import prepared, run_blocks, world_blocks
 
-__all__ = ["ArticulatedTrajectory"]
+__all__ = ["ArticulatedTrajectory", "StepArrays"]
+
+# the torch-visible buffers, by name: the state trajectories (hand, object), the running means over substeps (the
+# hand's wrench on the object, its normal force), the step's inputs (tau, q_target, kp, kd, packed parameters,
+# the wrench on each body), the observation, the mean generalised force on each part joint
+TORCH_FIELDS = ("hq", "hqd", "oq", "oqd", "wrench", "normal", "tau", "q_target", "kp", "kd", "params", "ext",
+                "pose", "tips", "joint_wrench")
+CONTROL_FIELDS = TORCH_FIELDS[6:12]  # the step's inputs after the state, in Trajectory.load's order
+# the warp-only buffers, by group (ArticulatedTrajectory.__init__ documents each)
+WARP_GROUPS = ("frames", "table", "palm", "hand", "total", "scratch", "final", "variant")
+
+
+@dataclasses.dataclass
+class StepArrays:
+    """What one step's launches bind, by name: every torch buffer (:data:`TORCH_FIELDS`) as a warp array, and
+    the warp-only groups (:data:`WARP_GROUPS`; ``variant`` a one-array group); the forward arrays, or their
+    adjoints."""
+
+    tensors: dict[str, wp.array]
+    groups: dict[str, list]
 
 
 class ArticulatedTrajectory:
@@ -38,12 +59,17 @@ class ArticulatedTrajectory:
         # torch-visible buffers: the state trajectories (hand, object), the running means over substeps (the
         # hand's wrench on the object, its normal force, its generalised force on each joint), the step's inputs,
         # the observation
-        self.hq, self.hqd, self.oq, self.oqd = z(rows, nu), z(rows, nu), z(rows, tree.nq), z(rows, tree.nv)
-        self.wrench, self.normal, self.joint_wrench = z(rows, 6), z(rows), z(rows, nparts)
-        self.controls = [z(n, nu), z(n, nu), z(n, nu), z(n, nu), z(n, sim.num_params_packed), z(n, 6 * nb)]
-        self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
-        self._torch = [self.hq, self.hqd, self.oq, self.oqd, self.wrench, self.normal, *self.controls, self.pose,
-                       self.tips, self.joint_wrench]
+        # (rows: substeps + 1 row blocks of n worlds for the trajectories, n for the inputs and the observation)
+        self.hq, self.hqd = z(rows, nu), z(rows, nu)  # rad, rad/s: the hand's joints
+        self.oq, self.oqd = z(rows, tree.nq), z(rows, tree.nv)  # the object's coordinates (ObjectTree's layout)
+        self.wrench, self.normal = z(rows, 6), z(rows)  # N, N m (world frame, about the base origin); N
+        self.joint_wrench = z(rows, nparts)  # N m or N: along each part joint
+        # tau (N m), q_target (rad), kp (N m/rad), kd (N m s/rad) [n, nu]; packed parameters [n, P]; wrench on
+        # each object body [n, 6 B] (N, N m; the planner's acts on the base)
+        self.controls = [z(n, nu), z(n, nu), z(n, nu), z(n, nu), z(n, sim.num_params), z(n, 6 * nb)]
+        self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)  # m + wxyz; m
+        self._torch = dict(zip(TORCH_FIELDS, [self.hq, self.hqd, self.oq, self.oqd, self.wrench, self.normal,
+                                              *self.controls, self.pose, self.tips, self.joint_wrench]))
 
         def new(dtype, width, count=sub_rows):
             return wp.zeros((count, width), dtype=dtype, device=sim.device)
@@ -65,19 +91,22 @@ class ArticulatedTrajectory:
                              new(k.vec3, nb, n)]
         # each world's object variant this step (the packed parameters' last column with K > 1; else zeros)
         self.variant = torch.zeros(n, dtype=torch.int32, device=sim.torch_device)
-        self._warp = (self.frames + self.table + self.palm + self.hand + self.total + self.scratch
-                      + self.final_frames + [wp.from_torch(self.variant)])
+        self._warp = dict(zip(WARP_GROUPS, [self.frames, self.table, self.palm, self.hand, self.total, self.scratch,
+                                            self.final_frames, [wp.from_torch(self.variant)]]))
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
         self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
-        self._reverse_cmds = None
+        self._reverse_cmds = None  # per block, the recorded adjoint launches (at the first backward)
+        self.adj_torch: dict[str, torch.Tensor] | None = None  # adjoints of _torch, by name (the simulator's)
+        self.adj_warp: dict[str, list] | None = None  # adjoints of _warp, by group
         self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
 
-    def _bind(self, torch_arrays=None, warp_arrays=None):
-        """The warp arrays the launches read, in :attr:`_torch` then :attr:`_warp` order."""
+    def _bind(self, torch_arrays=None, warp_groups=None) -> StepArrays:
+        """The arrays the launches read: :attr:`_torch` and :attr:`_warp` (or their adjoints), by name."""
         torch_arrays = self._torch if torch_arrays is None else torch_arrays
-        warp_arrays = self._warp if warp_arrays is None else warp_arrays
-        return [wp.from_torch(t) for t in torch_arrays] + list(warp_arrays)
+        warp_groups = self._warp if warp_groups is None else warp_groups
+        return StepArrays({name: wp.from_torch(t) for name, t in torch_arrays.items()},
+                          {name: list(group) for name, group in warp_groups.items()})
 
     def _launches(self, arrays, lo: int, hi: int, adjoint_arrays=None):
         """The launches of worlds [lo, hi), recorded and :func:`prepared`: the substeps then the observation's
@@ -89,17 +118,18 @@ class ArticulatedTrajectory:
         num_links = sim.scene.num_fingers * sim.scene.joints_per_finger
         points_per_link = num_points // num_links
 
-        def launches(a, model, hand_model, palm_model, only_touching):
-            hq, hqd, oq, oqd, wrench, normal, tau, q_target, kp, kd, params, ext, pose, tips, joint_wrench = a[:15]
-            cut = 25 + len(self.palm)
-            frames, table, palm = a[15:20], a[20:25], a[25:cut]
-            hand, total, scratch, final = a[cut:cut + 5], a[cut + 5:cut + 7], a[cut + 7:cut + 15], a[cut + 15:cut + 20]
-            variant = a[-1][lo:hi]
+        def launches(a: StepArrays, model, hand_model, palm_model, only_touching):
+            t, g = a.tensors, a.groups
+            hq, hqd, oq, oqd = t["hq"], t["hqd"], t["oq"], t["oqd"]
+            wrench, normal, joint_wrench, pose, tips = t["wrench"], t["normal"], t["joint_wrench"], t["pose"], t["tips"]
+            frames, table, palm, hand = g["frames"], g["table"], g["palm"], g["hand"]
+            total, scratch, final = g["total"], g["scratch"], g["final"]
+            variant = g["variant"][0][lo:hi]
 
             def rows(arr, s):  # substep s's rows of this block
                 return arr[s * n + lo: s * n + hi]
 
-            block = [c[lo:hi] for c in (tau, q_target, kp, kd, params, ext)]
+            block = [t[name][lo:hi] for name in CONTROL_FIELDS]
             out = []
             for s in range(self.steps):
                 fr, tb = [rows(x, s) for x in frames], [rows(x, s) for x in table]
@@ -186,19 +216,22 @@ class ArticulatedTrajectory:
         if self._reverse_cmds is None:
             # one set of adjoint buffers serves every trajectory of the simulator (reverse passes run one at a
             # time, each zeroes them first), so a pool of N steps in flight holds N + 1 sets of buffers, not 2 N
-            shared = self.sim.__dict__.get("_adjoint_buffers")
+            shared = self.sim._adjoint_buffers
             if shared is None:
-                shared = ([torch.zeros_like(t) for t in self._torch], [wp.zeros_like(a) for a in self._warp])
+                shared = ({name: torch.zeros_like(t) for name, t in self._torch.items()},
+                          {name: [wp.zeros_like(a) for a in group] for name, group in self._warp.items()})
                 self.sim._adjoint_buffers = shared
             self.adj_torch, self.adj_warp = shared
             adjoint = self._bind(self.adj_torch, self.adj_warp)
             self._reverse_cmds = {lo: self._launches(self._bind(), lo, hi, adjoint) for lo, hi in self.blocks}
-        for t in self.adj_torch:
+        for t in self.adj_torch.values():
             t.zero_()
-        for a in self.adj_warp:
-            a.zero_()
-        a_hq, a_hqd, a_oq, a_oqd, a_wrench, a_normal = self.adj_torch[:6]
-        a_pose, a_tips, a_joint_wrench = self.adj_torch[12:15]
+        for group in self.adj_warp.values():
+            for a in group:
+                a.zero_()
+        adj = self.adj_torch
+        a_hq, a_hqd, a_oq, a_oqd, a_wrench, a_normal = (adj[name] for name in TORCH_FIELDS[:6])
+        a_pose, a_tips, a_joint_wrench = adj["pose"], adj["tips"], adj["joint_wrench"]
         q_grad, qd_grad, wrench_grad, normal_grad, pose_grad, tips_grad, joint_wrench_grad = grad_outputs
         if q_grad is not None:
             a_hq[last:].copy_(q_grad[:, :nu])
@@ -212,6 +245,6 @@ class ArticulatedTrajectory:
             if g is not None:
                 target.copy_(g.reshape(target.shape))
         run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)
-        controls = self.adj_torch[6:12]
+        controls = [adj[name] for name in CONTROL_FIELDS]
         return [torch.cat([a_hq[:n], a_oq[:n]], 1), torch.cat([a_hqd[:n], a_oqd[:n]], 1),
                 *[c.clone() for c in controls[:5]], controls[5][:, :6].clone()]

@@ -45,7 +45,7 @@ from .render import Camera, Renderer, camera_view, framing_camera, hand_reach_sp
 from .render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
                                   mesh_render_kernel, place_bodies)
 from .scene_meshes import STATIC, SceneGeometry, scene_geometry
-from .simulator import check_device
+from .hand_sim import check_device
 from .stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["MeshRenderer", "make_renderer", "framing_spheres", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE",
@@ -57,7 +57,7 @@ VIEW_DIRECTION = (0.35, -1.0, 0.6)  # from the scene towards the default camera:
 MIN_PIXELS_PER_THREAD = 4096  # below this a second CPU thread costs more than it saves (mesh pixels are dear)
 
 
-def make_renderer(scene, height: int = 64, width: int = 64, camera: Camera | None = None,
+def make_renderer(scene, *, height: int = 64, width: int = 64, camera: Camera | None = None,
                   device: str | torch.device = "cpu", asset=None):
     """The renderer of ``scene``: a :class:`MeshRenderer` for an articulated-object scene (``asset``: its object,
     used when the scene's MJCF file is gone), else a :class:`~.render.Renderer`."""

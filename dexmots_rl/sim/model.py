@@ -29,10 +29,10 @@ from .mjcf_shapes import (
     _palm_boxes,
     _quat_to_mat,
 )
+from .object_model import HINGE, SLIDE  # one joint-kind enumeration: the hand's and the object's joints
 
 __all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "load_scene"]
 
-HINGE, SLIDE = 0, 1
 OBJECT_HINGE, OBJECT_FREE = 0, 1
 # per-world object joint parameters, by name: the kernels read column OBJECT_PARAMS.index(name) of the
 # packed [N, P] array the simulator builds from the named tensors (see Simulator.pack_params)
@@ -178,7 +178,7 @@ class SceneModel:
         return 1 if self.object_kind == OBJECT_HINGE else 6
 
 
-def load_scene(path: str | Path, contact: ContactParams | None = None) -> SceneModel:
+def load_scene(path: str | Path, *, contact: ContactParams | None = None) -> SceneModel:
     """Compile an MJCF file with MuJoCo and extract the hand chains and the object.
 
     Raises :class:`AssetError` naming the file and the problem when it does not parse or does not

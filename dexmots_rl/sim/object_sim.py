@@ -30,7 +30,7 @@ from tensordict import TensorDict
 from .mjcf_shapes import AssetError
 from .object_kernels import LIMIT_WIDTH, build_object_kernels
 from .object_model import MAX_SAMPLES, ObjectTree, object_tree
-from .simulator import check_device
+from .hand_sim import check_device
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
 
@@ -51,7 +51,7 @@ class TableContact:
     slip_velocity: float = 0.002  # m/s
 
 
-def load_object_tree(asset, timestep: float = 1.0 / 960.0) -> tuple[ObjectTree, object]:
+def load_object_tree(asset, *, timestep: float = 1.0 / 960.0) -> tuple[ObjectTree, object]:
     """Compile ``asset`` on a table with MuJoCo; returns ``(ObjectTree, MjModel)``."""
     import mujoco
 
@@ -77,7 +77,7 @@ class ObjectSimulator:
     (:class:`~dexmots_rl.sim.object_model.ObjectTree` documents the layout); parameters: the named
     per-joint values of :attr:`param_names`, each [N, 1]."""
 
-    def __init__(self, tree: ObjectTree, num_worlds: int, device: str = "cpu", dtype: torch.dtype = torch.float32,
+    def __init__(self, tree: ObjectTree, num_worlds: int, *, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  substeps: int = 16, sub_dt: float = 1.0 / 960.0, table: TableContact | None = None,
                  gravity=(0.0, 0.0, -9.81), variants: list[ObjectTree] | None = None):
         if num_worlds <= 0:

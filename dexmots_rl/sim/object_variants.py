@@ -88,7 +88,7 @@ def pad_geoms(geoms: ObjectGeoms, width: int) -> ObjectGeoms:
         sdf_values=geoms.sdf_values)
 
 
-def load_variants(paths, contact=None) -> ArticulatedScene:
+def load_variants(paths, *, contact=None) -> ArticulatedScene:
     """One :class:`ArticulatedScene` of the K objects of ``paths`` (MJCF files of the same hand; see the module
     docstring); variant k is ``paths[k]``. One path gives the scene :func:`~dexmots_rl.sim.load_scene` does."""
     from .model import load_scene
@@ -98,7 +98,7 @@ def load_variants(paths, contact=None) -> ArticulatedScene:
         raise ValueError("load_variants needs at least one MJCF file")
     scenes = []
     for path in paths:
-        scene = load_scene(path, contact)
+        scene = load_scene(path, contact=contact)
         if not getattr(scene, "articulated", False):
             raise AssetError(f"object variant {str(path)!r}: body 'object' is not an articulated object tree")
         if scenes:

@@ -57,7 +57,7 @@ from .render_kernels import (
     place_segments,
     render_kernel,
 )
-from .simulator import check_device
+from .hand_sim import check_device
 from .stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["Camera", "Renderer", "default_camera", "framing_camera", "camera_view", "reach_spheres",

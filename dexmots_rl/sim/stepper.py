@@ -171,7 +171,7 @@ class Trajectory:
         self.q, self.qd, self.wrench, self.cforce = z(rows, sim.nq), z(rows, sim.nv), z(rows, 6), z(rows)
         self.controls = [z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.nu), z(n, sim.num_params), z(n, 6)]
         self.pose, self.tips = z(n, sim.num_bodies * 7), z(n, sim.scene.num_fingers * 3)
-        self.graphs = bool(getattr(sim, "graphs", not sim.device.is_cpu))
+        self.graphs = bool(sim.graphs)
         self.blocks = [(0, n)] if self.graphs else world_blocks(n, sim.device)
         self.w_traj, self.w_acc, self.w_controls, self.w_final, self.w_obs = self._wrap(
             self.q, self.qd, self.wrench, self.cforce, self.controls, self.pose, self.tips)
@@ -213,7 +213,7 @@ class Trajectory:
                                  record_cmd=True))
             return out
         adj_traj, adj_acc, adj_controls, adj_final, adj_obs = self._adj_wrapped
-        adj_model = sim.adjoint_model()
+        adj_model = sim.adjoint_model
         out = [wp.launch(sim.kernels.observe, dim=dim, inputs=observe_args, device=sim.device, adjoint=True,
                          adj_inputs=[adj_model, *adj_final, *adj_obs, 0], record_cmd=True)]
         for s in reversed(range(sim.substeps)):
@@ -268,9 +268,8 @@ class Trajectory:
             replay_graph(self._reverse_cmds, self.sim.device)
         else:
             run_blocks(lambda lo, hi: [launch() for launch in self._reverse_cmds[lo]], self.blocks)
-        # a world that blew up must not poison the others' gradients (the env resets it); nan_to_num
-        # also copies, so the returned gradients outlive the buffers' reuse
+        # views of the adjoint buffers, valid until the next reverse pass (SimStep copies them as it zeroes the
+        # worlds whose gradient is not finite)
         grads = [self.adj[0][:n], self.adj[1][:n], *self.adj_controls]
         needed = [True] * len(grads) if needed is None else needed
-        return [torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0) if need else None
-                for g, need in zip(grads, needed)]
+        return [g if need else None for g, need in zip(grads, needed)]

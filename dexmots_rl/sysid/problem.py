@@ -58,14 +58,12 @@ class Cost:
 def coordinate_kinds(sim) -> list[str]:
     """Each state coordinate's kind (the hand's joints, then the object's): ``"position"`` (m: a slide, a base's
     position), ``"quaternion"`` (a free base's wxyz rotation) or ``"angle"`` (rad: a hinge)."""
-    from ..sim.model import SLIDE as HAND_SLIDE
+    from ..sim import SLIDE
 
-    hand = ["position" if k == HAND_SLIDE else "angle" for k in sim.scene.joint_type]
+    hand = ["position" if k == SLIDE else "angle" for k in sim.scene.joint_type]
     tree = getattr(sim, "tree", None)
     if tree is None:  # one hinged or free object (the knob, the cube)
         return hand + (["angle"] if sim.scene.articulated else ["position"] * 3 + ["quaternion"] * 4)
-    from ..sim.object_model import SLIDE
-
     base = ["position"] * 3 + ["quaternion"] * 4 if tree.free else []
     return hand + base + ["position" if k == SLIDE else "angle" for k in tree.joint_kind]
 

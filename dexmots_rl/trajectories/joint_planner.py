@@ -1,13 +1,12 @@
 """Planning the operated joint of an articulated object through the simulator: ``optimize_joint_torques``.
 
 The articulated counterpart of :func:`~dexmots_rl.trajectories.optimize_wrenches` (paper §4), for the
-objects of :mod:`dexmots_rl.assets.objects`: the object alone (:class:`~dexmots_rl.sim.object_sim.
-ObjectSimulator`) with its base held where it stands (a free base is planned as fixed: the hand holds
-it), its other joints free under their springs, damping and friction, and one generalised force on the
-operated joint: a torque about a hinge's axis (a couple on the part and its parent) or a force along a
-slide. The force sequence is optimised by Adam through the simulator to track a linear ramp of the joint
-from ``start`` to ``goal`` (then held), so the plan's force includes what the spring, damping, friction,
-the range stops and the part's inertia need.
+objects of :mod:`dexmots_rl.assets.objects`: the object alone (:class:`~dexmots_rl.sim.ObjectSimulator`) with its
+base held where it stands (a free base is planned as fixed: the hand holds it), its other joints free under
+their springs, damping and friction, and one generalised force on the operated joint: a torque about a hinge's
+axis (a couple on the part and its parent) or a force along a slide. The force sequence is optimised by Adam
+through the simulator to track a linear ramp of the joint from ``start`` to ``goal`` (then held), so the plan's
+force includes what the spring, damping, friction, the range stops and the part's inertia need.
 
 Row ``t`` of the returned :class:`PoseWrenchTrajectory` holds the simulated joint at time ``t·dt`` and the
 force of the step that ended there (row 0 repeats row 1), ``joint_q`` / ``joint_torque`` of the operated
@@ -45,7 +44,7 @@ def held_tree(tree):
 
 
 def _tree_of(obj):
-    from ..sim.object_sim import load_object_tree
+    from ..sim import load_object_tree
 
     if hasattr(obj, "tree"):  # an ArticulatedScene (a task's scene)
         return obj.tree
@@ -65,7 +64,7 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
     linearly to 5 % (default: a tenth of the largest quasi-static force, at least 1e-3); ``params``: named
     joint parameters (``"<joint>/damping"``, ...) per plan."""
     from .joint_law import part_torque
-    from ..sim.object_sim import ObjectSimulator
+    from ..sim import ObjectSimulator
 
     if steps < 1 or iterations < 0:
         raise ValueError(f"steps must be >= 1 and iterations >= 0, got steps={steps}, iterations={iterations}")
@@ -159,7 +158,7 @@ def optimize_joint_torques(obj, joint: str, start, goal, steps: int, *, iteratio
 
 
 def _is_slide(tree, j: int) -> bool:
-    from ..sim.object_model import SLIDE
+    from ..sim import SLIDE
 
     return int(tree.joint_kind[j]) == SLIDE
 

@@ -98,7 +98,7 @@ def sample_variants(name: str, k: int, rng=None, size_scale: float = 0.1) -> lis
     0 is the instance itself, named ``name``; variant i > 0 (named ``<name>_size<i>``) has each size parameter
     drawn within ``size_scale`` (relative) of the instance's (``Params.sample_sizes``), the rest kept. Every
     variant has the instance's topology (bodies and joints), so one scene holds them all
-    (:func:`dexmots_rl.sim.object_variants.load_variants`). ``rng``: a seed or a numpy Generator."""
+    (:func:`dexmots_rl.sim.load_variants`). ``rng``: a seed or a numpy Generator."""
     from .generators.common import make_rng
 
     if name in INSTANCES:

@@ -108,15 +108,14 @@ def check_evaluation_objects(task_config: dict, objects) -> list[str]:
 
 def build_scene(object_name: str, objects=None, variants: int = 0, variant_scale: float = 0.1,
                 variant_seed: int = 0, urdf=None, joint: str | None = None):
-    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.articulated.ArticulatedScene`)
+    """The hand-and-object scene of ``object_name`` (an :class:`~dexmots_rl.sim.ArticulatedScene`)
     and the object; the MJCF is written to :func:`scene_dir` (atomically: a complete file or none). With
     ``objects`` (names or URDF paths, of one topology) or ``variants`` >= 2 (size variants of ``object_name``),
-    a scene of those object variants (:mod:`dexmots_rl.sim.object_variants`); the object returned is variant 0's.
+    a scene of those object variants (:func:`dexmots_rl.sim.load_variants`); the object returned is variant 0's.
     ``urdf`` (a :class:`.urdf_object.UrdfOptions`) and ``joint``: how a URDF is loaded
     (:func:`.urdf_object.urdf_load_options`)."""
     from ....assets.objects import load_object, sample_variants
-    from ....sim import load_scene
-    from ....sim.object_variants import load_variants
+    from ....sim import load_scene, load_variants
 
     urdf = urdf or UrdfOptions()
     if objects:

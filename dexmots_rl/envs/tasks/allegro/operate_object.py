@@ -2,7 +2,7 @@
 
 The scene is built from the object (:func:`dexmots_rl.assets.hand_scene.hand_object_scene_xml`): the object
 stands on a table with its grasp point under the palm-down hand (a free base must be held, or it is pushed
-over; a fixed one cannot move), and is simulated by :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`.
+over; a fixed one cannot move), and is simulated by :class:`~dexmots_rl.sim.ArticulatedSimulator`.
 
 Per episode: the operated joint (``task.joint``, default the object's ``operated_joint``) starts at rest and
 its goal is ``rest + goal_fraction (far end - rest)``, the far end being the end of its range farther from
@@ -32,7 +32,7 @@ Object variants: ``objects`` (library names or URDF paths of one topology, e.g. 
 ``train`` / ``heldout``: that part of the library split of ``object``'s class) or
 ``variants`` >= 2 (``variants`` size variants of ``object``: the object itself and ``variants - 1`` with every
 size drawn within ``variant_scale`` of its own, seeded by ``variant_seed``; :func:`~dexmots_rl.assets.objects.
-sample_variants`) build one scene of K objects (:mod:`dexmots_rl.sim.object_variants`). Every reset draws each
+sample_variants`) build one scene of K objects (:func:`dexmots_rl.sim.load_variants`). Every reset draws each
 world's variant uniformly (the per-world parameter ``("sim", "params", "variant")``), its joint parameters
 around that variant's values, and its goal, rest pose, reference law, base pose and pre-grasp from that variant
 (an instance's own pre-grasps; size variants start from their instance's, found for its nominal sizes). The
@@ -50,8 +50,7 @@ import torch
 from tensordict import TensorDict
 
 from ....quaternions import quat_angle
-from ....sim import ContactParams
-from ....sim.object_model import SLIDE, joint_param_names
+from ....sim import SLIDE, ContactParams, joint_param_names
 from ...base import DexEnv
 from ...demos import demo_trajectory, part_torque
 from ...object_pregrasp import operate_pregrasp_path
