@@ -177,3 +177,35 @@ def test_task_objects_that_name_nothing_or_mix_topologies_are_one_error_naming_t
         make_env("operate", num_envs=1, objects=objects, raw=True)
     msg = str(err.value)
     assert msg.startswith("task.objects") and named in msg and "scene.xml" not in msg and "\n" not in msg
+
+
+def test_a_world_that_left_the_physics_is_reset_and_counted(monkeypatch):
+    """A step that leaves a world's tool deep in the table (8.3 m, slowly) or its part far past a stop (7.9 rad) is
+    a blow-up like a non-finite state: that world is reset, terminated, counted, rewarded 0; the others are not."""
+    env = make_env("scissors", num_envs=3, differentiable=False, seed=0, raw=True)
+    sim, tree = env.sim, env.sim.object_tree
+    td = env.reset()
+    td.set("action", torch.zeros(3, env.action_spec.shape[-1]))
+    clean = env.step(td.clone())["next"]
+    assert not clean["terminated"].any()
+    step, nu = sim.step, sim.nu
+    pivot = nu + 7 * tree.free + env.joint_index
+
+    def leaving(*args, **kwargs):
+        out = step(*args, **kwargs)
+        q, pose = out.joint_q.clone(), out.body_pose.clone()
+        q[1, nu + 2] -= 8.3  # world 1: the tool's base sunk through the table (its bodies with it)
+        pose[1, nu:, 2] -= 8.3
+        q[2, pivot] = float(tree.joint_range[env.joint_index, 1]) + 7.9  # world 2: the pivot past its stop
+        return type(out)((q, out.joint_qd, out.wrench, out.contact_force, pose, *out[5:]))
+
+    monkeypatch.setattr(sim, "step", leaving)
+    out = env.step(td.clone())["next"]
+    assert out["terminated"].squeeze(-1).tolist() == [False, True, True]
+    assert out["info", "sim_failures"].squeeze(-1).tolist() == [0, 1, 1]
+    assert out["reward"][1:].abs().max() == 0 and int(out["task", "step"][1:].abs().max()) == 0
+    for key, value in clean.items(include_nested=True, leaves_only=True):
+        assert torch.equal(out[key][0], value[0]), key
+    # a step that stays within the physics is not flagged
+    fresh = env.reset()
+    assert not sim.outside_physics(fresh["sim", "joint_q"], fresh["sim", "body_pose"], fresh["sim", "params"]).any()

@@ -204,3 +204,24 @@ def test_variable_impedance_env_specs_and_gradients():
     out = env.step(td.set("action", action))
     (grad,) = torch.autograd.grad(out["next", "hand", "q"].sum(), action)
     assert torch.isfinite(grad).all() and grad[:, :4].abs().sum() > 0 and grad[:, 4:].abs().sum() > 0
+
+
+def test_gradient_counts_are_published_per_world():
+    """The backward pass's per-world counts (a capped adjoint, a non-finite gradient set to zero) ride in every
+    step's TensorDict under ("info", ...) keys and in ``gradient_counts()``: consumers read keys, not the simulator."""
+    env = make_env("screw_claw", num_envs=N, differentiable=True, seed=0, raw=True, adjoint_clip=10.0)
+    td = env.reset()
+    for key in ("clipped_adjoints", "nonfinite_gradients"):
+        assert td["info", key].shape == (N, 1) and td["info", key].dtype == torch.int64 and not td["info", key].any()
+    action = torch.zeros(N, env.action_spec.shape[-1], requires_grad=True)
+    td.set("action", action)
+    out = env.step(td)["next"]
+    upstream = torch.tensor([[1.0], [float("inf")], [1.0]])  # world 1's adjoint overflows in the simulator
+    with pytest.warns(RuntimeWarning, match="non-finite gradient"):
+        (out["sim", "joint_q"] * upstream).sum().backward()
+    assert (action.grad[1] == 0).all() and action.grad[[0, 2]].abs().max() > 0
+    counts = env.gradient_counts()
+    assert counts["info", "nonfinite_gradients"].squeeze(-1).tolist() == [0, 1, 0]
+    nxt = out.clone().detach()
+    nxt.set("action", torch.zeros(N, env.action_spec.shape[-1]))
+    assert env.step(nxt)["next", "info", "nonfinite_gradients"].squeeze(-1).tolist() == [0, 1, 0]

@@ -208,13 +208,52 @@ def test_nan_world_gradients_are_zeroed(make_claw_sim):
     _, gq_clean, gt_clean = grads(q)
     q_bad = q.clone()
     q_bad[1, 0] = float("nan")
-    out, gq, gt = grads(q_bad)
+    with pytest.warns(RuntimeWarning, match="non-finite gradient"):
+        out, gq, gt = grads(q_bad)
     assert torch.isnan(out.joint_q[1, :2]).all()  # the right finger of world 1 is NaN ...
     assert torch.isfinite(gq).all() and torch.isfinite(gt).all()  # ... yet no NaN gradient comes back
     assert float(gq[1, :2].abs().max()) == 0.0 and float(gt[1, :2].abs().max()) == 0.0
     assert float(gq_clean[1, :2].abs().min()) > 0.0  # (a clean world has nonzero gradients there)
     torch.testing.assert_close(gq[[0, 2]], gq_clean[[0, 2]], rtol=0, atol=0)
     torch.testing.assert_close(gt[[0, 2]], gt_clean[[0, 2]], rtol=0, atol=0)
+
+
+@pytest.fixture(scope="module")
+def tool_sim():
+    from dexmots_rl.sim import make_simulator
+    from test_articulated import _scene
+
+    return make_simulator(_scene("spray_bottle_a"), num_worlds=3, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("kind", ["claw", "tool"])
+def test_a_world_whose_gradient_is_not_finite_gets_zero_and_is_counted(kind, request):
+    """An adjoint that overflows in one world (here: an infinite output gradient in world 1) gives that world a zero
+    gradient, counted per world in ``nonfinite_gradient_steps`` and warned about; the other worlds' gradients are
+    exactly the ones they get alone (every scene, whatever ``adjoint_clip``)."""
+    sim = request.getfixturevalue("make_claw_sim")(3) if kind == "claw" else request.getfixturevalue("tool_sim")
+    q, qd = sim.initial_state()
+    if kind == "claw":
+        q, qd = batch_state(sim, CLAW_CONTACT_Q)
+
+    def grads(upstream):
+        tau = torch.full((3, sim.nu), 0.1, dtype=torch.float64, requires_grad=True)
+        q_in = q.clone().requires_grad_(True)
+        out = sim.step(q_in, qd, torque(tau), sim.default_params())
+        (out.joint_q * upstream).sum().backward()
+        return tau.grad, q_in.grad
+
+    before = sim.nonfinite_gradient_steps.clone()
+    clean_tau, clean_q = grads(torch.ones(3, sim.nq, dtype=torch.float64))
+    assert torch.equal(sim.nonfinite_gradient_steps, before)
+    upstream = torch.ones(3, sim.nq, dtype=torch.float64)
+    upstream[1, 0] = float("inf")
+    with pytest.warns(RuntimeWarning, match="1 of 3 worlds had a non-finite gradient"):
+        tau_grad, q_grad = grads(upstream)
+    assert (tau_grad[1] == 0).all() and (q_grad[1] == 0).all()
+    assert torch.equal(tau_grad[[0, 2]], clean_tau[[0, 2]]) and torch.equal(q_grad[[0, 2]], clean_q[[0, 2]])
+    assert float(clean_tau[1].abs().max()) > 0  # (world 1's clean gradient is not zero anyway)
+    assert (sim.nonfinite_gradient_steps - before).tolist() == [0, 1, 0]
 
 
 def test_taped_and_untaped_steps_agree(make_claw_sim):

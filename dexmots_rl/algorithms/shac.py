@@ -34,7 +34,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SoftUpdate
 
 from ..progress import progress_bar
-from ..envs import make_env
+from ..envs import GRADIENT_COUNTS, make_env
 from ..objectives import AdaptiveHorizon, PolicySmoothnessLoss, SHACLoss, next_rollout_start
 from .best_policy import BestPolicy
 from .checkpoint import restore_rng_states, rng_states
@@ -125,10 +125,9 @@ def _train(run: RunDirectory, dist, stop) -> dict:
     optimizers = {"actor": actor_opt, "critic": critic_opt}
     smoothness = _smoothness(cfg, actor)
     best = BestPolicy(modules, optimizers, cfg.algo.best_window, cfg.algo.rollback_drop) if cfg.algo.keep_best else None
-    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "wall_clock_s": 0.0,
-                "cpu_s": 0.0,
+    counters = {"iteration": 0, "env_steps": 0, "skipped_updates": 0, "clipped_adjoints": 0, "nonfinite_gradients": 0,
+                "wall_clock_s": 0.0, "cpu_s": 0.0,
                 "smooth_scale": 1.0 if cfg.algo.smooth_clip_target is None else 0.0}
-    sim = env.base_env.sim
     td = env.reset()
     if start is not None:
         for name, module in modules.items():
@@ -166,10 +165,16 @@ def _train(run: RunDirectory, dist, stop) -> dict:
         # 2. actor: backpropagate the short-horizon return through the simulator
         actor_opt.zero_grad()
         loss_actor = loss.actor_loss(rollout)
-        clipped_before = sim.clipped_adjoints
+        before = env.base_env.gradient_counts()
         loss_actor.backward()
-        clipped = sim.clipped_adjoints - clipped_before  # world-steps whose adjoint was capped (adjoint_clip)
+        # world-steps whose adjoint was capped (adjoint_clip), and whose gradient was not finite (set to zero)
+        after = env.base_env.gradient_counts()
+        clipped, nonfinite = (int((after[key] - before[key]).sum()) for key in GRADIENT_COUNTS)
         counters["clipped_adjoints"] += clipped
+        counters["nonfinite_gradients"] = counters.get("nonfinite_gradients", 0) + nonfinite
+        if nonfinite:
+            log.warning("iteration %d: %d world-steps of the rollout had a non-finite gradient (set to zero)",
+                        counters["iteration"], nonfinite)
         dist.average_gradients(actor.parameters())
         grad_norm = float(torch.nn.utils.clip_grad_norm_(actor.parameters(), cfg.algo.grad_norm))
         # share of world-steps whose adjoint was capped, averaged over ranks: rising shares went with the runs
@@ -292,6 +297,7 @@ def _iteration_metrics(rollout, counters, loss_actor, critic_losses, grad_norm, 
         "horizon": horizon,
         "skipped_updates": counters["skipped_updates"],
         "clipped_adjoints": counters["clipped_adjoints"],
+        "nonfinite_gradients": counters.get("nonfinite_gradients", 0),
         "sim_failures": int(nxt.get(("info", "sim_failures")).sum()),
     }
     if "reward_terms" in nxt.keys():

@@ -7,7 +7,7 @@
 from __future__ import annotations
 
 from .actions import ACTION_TYPES, ActionMap, validate_action
-from .base import DexEnv, ScriptedPolicy
+from .base import GRADIENT_COUNTS, DexEnv, ScriptedPolicy
 from .config import BenchPoses, PlanProblem, TaskConfig
 from .references import load_reference_bank
 from .registry import OBS_MODES, TASKS, list_tasks, make_env, register_task, task_config, task_contact, task_entry, task_scene
@@ -21,7 +21,8 @@ try:  # gymnasium ids dexmots/<Task>-v0 (see .gym); the torchrl API does not nee
 except ImportError:  # pragma: no cover - gymnasium is a dependency, but keep torchrl-only installs working
     pass
 
-__all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "BenchPoses", "DexEnv", "ScriptedPolicy", "GOAL_MODES", "GoalConditioning",
+__all__ = ["ACTION_TYPES", "ActionMap", "validate_action", "BenchPoses", "DexEnv", "GRADIENT_COUNTS", "ScriptedPolicy",
+           "GOAL_MODES", "GoalConditioning",
            "OBS_MODES", "POLICY_KEYS", "PlanProblem", "RewardCoefficients", "TASKS", "TaskConfig",
            "load_reference_bank", "list_tasks", "make_env", "observation_transform", "register_task",
            "angle_tracking_reward", "task_config", "task_contact", "task_entry", "task_scene", "ScrewClawConfig", "ScrewClawEnv"]

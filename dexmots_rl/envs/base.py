@@ -33,9 +33,13 @@ from .fields import check_value, rule
 from .object_params import read_object_params
 from .references import load_reference_bank
 
-__all__ = ["DexEnv", "MAX_JOINT_SPEED", "ScriptedPolicy"]
+__all__ = ["DexEnv", "MAX_JOINT_SPEED", "GRADIENT_COUNTS", "ScriptedPolicy"]
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s (m/s); a world faster than this has blown up and is reset
+# per world, int64 [N, 1]: blow-ups reset so far, and (since the env was built) backward steps whose adjoint
+# adjoint_clip capped and whose non-finite gradient was zeroed (the simulator counts those in its backward pass)
+GRADIENT_COUNTS = (("info", "clipped_adjoints"), ("info", "nonfinite_gradients"))
+INFO_COUNTS = (("info", "sim_failures"), *GRADIENT_COUNTS)
 
 
 class DexEnv(EnvBase):
@@ -130,6 +134,16 @@ class DexEnv(EnvBase):
         self.generator = torch.Generator(device=device)
         self._set_seed(seed if seed is not None else int(torch.empty((), dtype=torch.int64).random_().item()))
 
+    def gradient_counts(self) -> TensorDict:
+        """The simulator's per-world gradient counters as of now, by key (:data:`GRADIENT_COUNTS`, each int64
+        [N, 1]): the backward steps whose adjoint ``adjoint_clip`` capped, and those whose non-finite gradient was
+        set to zero, since the env was built. Every step's and reset's TensorDict carries them; a trainer reads
+        them around its backward pass (no host synchronisation here)."""
+        sim = self.sim
+        return TensorDict({GRADIENT_COUNTS[0]: sim.clipped_adjoint_steps.unsqueeze(-1).clone(),
+                           GRADIENT_COUNTS[1]: sim.nonfinite_gradient_steps.unsqueeze(-1).clone()},
+                          batch_size=[self.num_envs], device=self.device)
+
     def bench_poses(self):
         """The :class:`~dexmots_rl.envs.BenchPoses` of this env's scene (default: the class's ``bench``)."""
         return self.bench
@@ -156,6 +170,7 @@ class DexEnv(EnvBase):
             ("task", "goal"): (self.goal_dim,),
             ("sim", "joint_q"): (sim.nq,),
             ("sim", "joint_qd"): (sim.nv,),
+            ("sim", "body_pose"): (sim.num_bodies, 7),
             **{("sim", "params", name): (1,) for name in sim.scene.param_names},
         }
 
@@ -168,7 +183,8 @@ class DexEnv(EnvBase):
             obs[("reward_terms", name)] = Unbounded(shape=(n, 1), dtype=dt, device=dev)
         obs[("task", "step")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
         obs[("task", "ref_index")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
-        obs[("info", "sim_failures")] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
+        for key in INFO_COUNTS:
+            obs[key] = Unbounded(shape=(n, 1), dtype=torch.int64, device=dev)
         obs["success"] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=dev)
         self.observation_spec = obs
         self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.actions.action_dim), dtype=dt, device=dev)
@@ -316,6 +332,7 @@ class DexEnv(EnvBase):
             ("fingertips", "pos"): tips,
             ("sim", "joint_q"): q,
             ("sim", "joint_qd"): qd,
+            ("sim", "body_pose"): body_pose,
             **{("sim", "params", name): value for name, value in params.items()},
             ("task", "goal"): goal,
             "desired_goal": goal,
@@ -357,6 +374,7 @@ class DexEnv(EnvBase):
         out = TensorDict(obs, batch_size=[n], device=self.device)
         out.set(("task", "step"), step)
         out.set(("info", "sim_failures"), failures)
+        out.update(self.gradient_counts())
         for name in self.reward_terms:
             zero = torch.zeros(n, 1, dtype=self.dtype, device=self.device)
             old = tensordict.get(("reward_terms", name), None) if mask is not None else None
@@ -408,6 +426,8 @@ class DexEnv(EnvBase):
         failures = tensordict.get(("info", "sim_failures")).clone()
         blown = ~(torch.isfinite(out.joint_q).all(-1, keepdim=True) & torch.isfinite(out.joint_qd).all(-1, keepdim=True))
         blown |= out.joint_qd.detach().abs().amax(-1, keepdim=True).nan_to_num(float("inf")) > MAX_JOINT_SPEED
+        # a world whose object went through the table or far past a stop has left the physics, however slow it is
+        blown |= self.sim.outside_physics(out.joint_q.detach(), out.body_pose.detach(), params).unsqueeze(-1)
         if self.sync_free or bool(blown.any()):
             # reset the worlds that blew up so that no NaN reaches the batch; count them
             fresh = self._initial_obs()
@@ -425,6 +445,7 @@ class DexEnv(EnvBase):
             "reward": reward,
             ("task", "step"): step,
             ("info", "sim_failures"): failures,
+            **self.gradient_counts(),
             # a world that ends by termination (a dropped cube, a blow-up) has failed, whatever the task's test says
             "success": self.task_success(obs, obs[("task", "goal")]) & ~terminated,
             "terminated": terminated,

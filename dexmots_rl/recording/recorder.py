@@ -112,7 +112,10 @@ class EpisodeRecorder:
         if joint_q.shape[0] != n:
             raise ValueError(f"expected a TensorDict of {n} worlds, got batch {tuple(td.batch_size)}")
         with torch.no_grad():
-            body_pose = self.sim.observe(joint_q)[0].cpu().to(torch.float64).numpy()
+            # an env's TensorDict carries every body's pose; a bare simulator's state is observed here
+            body_pose = td.get(("sim", "body_pose"), None)
+            body_pose = self.sim.observe(joint_q)[0] if body_pose is None else body_pose
+            body_pose = body_pose.cpu().to(torch.float64).numpy()
             goal_pose, target = self._reference(td, body_pose)
         if self._offsets is None:
             self._offsets = grid_offsets(n, self.world_spacing or self._spacing(body_pose[0]))

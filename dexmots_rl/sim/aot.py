@@ -43,7 +43,7 @@ def warp_versions() -> dict:
 def simulator_kernels(sim) -> dict[str, object]:
     """Every warp kernel of a simulator's kernel namespaces (an articulated scene's hand kernels too), by
     attribute name (``substep``, ``observe``, ...)."""
-    spaces = [sim.kernels] + ([sim.hand_kernels] if hasattr(sim, "hand_kernels") else [])
+    spaces = [sim.kernels] + sim.more_kernels
     return {name: value for space in spaces for name, value in vars(space).items() if isinstance(value, wp.Kernel)}
 
 

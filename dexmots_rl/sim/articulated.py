@@ -26,9 +26,10 @@ from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from .articulated_stepper import ArticulatedTrajectory
 from .energy import tree_energy
 from .hand_kernels import build_hand_kernels
-from .object_model import MAX_SAMPLES
+from .object_model import MAX_SAMPLES, SLIDE
 from .palm_object_kernels import build_palm_object_kernels
-from .hand_sim import HandSimulator, StepOutput
+from ..quaternions import quat_to_matrix
+from .hand_sim import BELOW_TABLE, PAST_STOP_HINGE, PAST_STOP_SLIDE, HandSimulator, StepOutput
 from .model import ContactParams
 from .object_sim import ObjectSimulator, TableContact
 
@@ -77,10 +78,21 @@ class ArticulatedSimulator(HandSimulator):
         # the reverse pass's buffers, shared by every trajectory of this simulator (made at the first backward pass;
         # ArticulatedTrajectory.backward documents them)
         self._adjoint_buffers = None
+        # what outside_physics compares a state with, per variant: the part joints' ranges [V, P, 2] (rad or m) and
+        # how far past them a world has left the physics [P]; the table-contact samples (body frame, m) [V, B, S, 3]
+        # and their radii [V, B, S] (m, -1: padding); the table's top [V] (m)
+        opts = dict(dtype=dtype, device=self.torch_device)
+        self._joint_range = torch.as_tensor(np.stack([t.joint_range for t in self.variants]), **opts)
+        self._past_stop = torch.as_tensor([PAST_STOP_SLIDE if kind == SLIDE else PAST_STOP_HINGE
+                                           for kind in scene.tree.joint_kind], **opts)
+        self._sample_pos = torch.as_tensor(np.stack([t.sample_pos for t in self.variants]), **opts)
+        self._sample_radius = torch.as_tensor(np.stack([t.sample_radius for t in self.variants]), **opts)
+        self._table_z = torch.as_tensor([t.table_height or 0.0 for t in self.variants], **opts)
         self.hand_kernels = build_hand_kernels(self.kernels.dtype, scene.num_fingers, scene.joints_per_finger,
                                                scene.points_per_link, scene.tree.num_bodies,
                                                scene.variant_geoms[0].kind.shape[1])
         self.hand_model = self._make_hand_model()
+        self.more_kernels = [self.hand_kernels]
         self.palm_kernels, self.palm_model = self._make_palm()
 
     @property
@@ -195,6 +207,25 @@ class ArticulatedSimulator(HandSimulator):
     @property
     def object_is_free(self) -> bool:
         return bool(self.tree.free)
+
+    def outside_physics(self, joint_q, body_pose, params=None) -> torch.Tensor:
+        n, nu, tree = joint_q.shape[0], self.nu, self.tree
+        variant = torch.zeros(n, dtype=torch.long, device=joint_q.device)
+        if self.num_variants > 1 and params is not None and "variant" in params.keys():
+            variant = params["variant"].detach().reshape(-1).round().long().clamp(0, self.num_variants - 1)
+        out = torch.zeros(n, dtype=torch.bool, device=joint_q.device)
+        if tree.num_parts:
+            coords = joint_q[:, nu + 7 * tree.free:]
+            lower, upper = self._joint_range[variant].unbind(-1)  # [N, P] each
+            out |= ((coords < lower - self._past_stop) | (coords > upper + self._past_stop)).any(-1)
+        if tree.table_height is not None:
+            pose = body_pose[:, nu:]  # [N, B, 7] the object's bodies
+            rot = quat_to_matrix(pose[..., 3:7])  # [N, B, 3, 3]
+            points = pose[..., None, :3] + torch.einsum("nbij,nbsj->nbsi", rot, self._sample_pos[variant])
+            bottom = points[..., 2] - self._sample_radius[variant]  # [N, B, S] each sample's lowest point (m)
+            bottom = torch.where(self._sample_radius[variant] >= 0, bottom, torch.full_like(bottom, float("inf")))
+            out |= bottom.amin((-1, -2)) < self._table_z[variant] - BELOW_TABLE
+        return out
 
     def object_energy(self, joint_q, joint_qd, params=None) -> torch.Tensor:
         params = self.default_params() if params is None else params

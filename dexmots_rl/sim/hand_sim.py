@@ -11,16 +11,21 @@ in reverse for the gradient. A subclass builds its kernels and model and says ho
 from __future__ import annotations
 
 import dataclasses
-import logging
+import warnings
 import weakref
 from typing import Protocol
 
 import torch
 from tensordict import TensorDict
 
-__all__ = ["Control", "StepOutput", "TapeTrajectory", "HandSimulator", "SimStep", "check_device"]
+__all__ = ["Control", "StepOutput", "TapeTrajectory", "HandSimulator", "SimStep", "check_device", "BELOW_TABLE",
+           "PAST_STOP_HINGE", "PAST_STOP_SLIDE"]
 
-log = logging.getLogger(__name__)
+# A world whose object is this far inside the table or past a stop has left the physics (it tunnelled, or the stop
+# gave way): the contact and the stops hold a body within millimetres of them (a stop ~0.01 rad under 1 N m)
+BELOW_TABLE = 0.05  # m: a table-contact sample of the object this far below the table's top
+PAST_STOP_HINGE = 0.5  # rad: an object hinge this far beyond its range
+PAST_STOP_SLIDE = 0.05  # m: an object slide this far beyond its range
 
 
 @dataclasses.dataclass
@@ -143,10 +148,10 @@ class HandSimulator:
         self.dt = self.sub_dt * substeps  # s: one env step
         self.contact = contact or ContactParams()
         self.adjoint_clip = adjoint_clip
-        # counted on the device (no host synchronisation in the backward pass), int64 scalars: worlds x steps
-        # whose adjoint adjoint_clip scaled down, and worlds x steps whose non-finite gradient was zeroed
-        self._clipped = torch.zeros((), dtype=torch.int64, device=self.torch_device)
-        self._nonfinite = torch.zeros((), dtype=torch.int64, device=self.torch_device)
+        # per world, int64 [N], counted on the device (no host synchronisation in the backward pass): the backward
+        # steps whose adjoint adjoint_clip scaled down, and those whose non-finite gradient was zeroed
+        self.clipped_adjoint_steps = torch.zeros(num_worlds, dtype=torch.int64, device=self.torch_device)
+        self.nonfinite_gradient_steps = torch.zeros(num_worlds, dtype=torch.int64, device=self.torch_device)
         self._fast: TapeTrajectory | None = None  # the gradient-free steps' trajectory, made at the first one
         self._pool: list[TapeTrajectory] = []  # taped trajectories not in use (SimStep takes and returns them)
         self._no_wrench: torch.Tensor | None = None  # [N, 6] zeros: the object wrench of a control without one
@@ -156,6 +161,8 @@ class HandSimulator:
     nv: int  # state velocities
     nu: int  # hand joints (actuated)
     num_bodies: int  # bodies in StepOutput.body_pose: the hand's links, then the object's
+    kernels: object  # the step's kernel namespace (and the model struct type); the object tree's for an articulated scene
+    more_kernels: list = []  # any other kernel namespaces the step launches (an articulated scene's hand kernels)
     object_tree = None  # the articulated object's ObjectTree (its layout in the state), None: one hinged or free body
 
     @property
@@ -186,6 +193,13 @@ class HandSimulator:
 
     def observe(self, joint_q, joint_qd=None, params=None):
         """Body poses [N, B, 7] and fingertips [N, F, 3] for a state, without stepping."""
+        raise NotImplementedError
+
+    def outside_physics(self, joint_q: torch.Tensor, body_pose: torch.Tensor, params=None) -> torch.Tensor:
+        """[N] bool: the worlds whose state (a step's ``joint_q`` and ``body_pose``) has left the physics: a
+        table-contact sample of the object more than :data:`BELOW_TABLE` below the table's top, or an object joint
+        more than :data:`PAST_STOP_HINGE` (a hinge) or :data:`PAST_STOP_SLIDE` (a slide) beyond its range.
+        Tensor operations only (no host read); ``params``: the named parameters (a world's object variant)."""
         raise NotImplementedError
 
     def check_params(self, params) -> None:
@@ -225,15 +239,15 @@ class HandSimulator:
 
     @property
     def clipped_adjoints(self) -> int:
-        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down, since construction (counted on the
-        device; reading it synchronises, so read it once per iteration, not per step)."""
-        return int(self._clipped)
+        """Worlds x steps whose adjoint ``adjoint_clip`` scaled down, since construction (the sum of
+        :attr:`clipped_adjoint_steps`; reading it synchronises, so read it once per iteration, not per step)."""
+        return int(self.clipped_adjoint_steps.sum())
 
     @property
     def nonfinite_gradients(self) -> int:
         """Worlds x steps whose gradient had an infinite or NaN entry and was set to zero, since construction
-        (counted on the device; reading it synchronises, so read it once per iteration, not per step)."""
-        return int(self._nonfinite)
+        (the sum of :attr:`nonfinite_gradient_steps`; reading it synchronises)."""
+        return int(self.nonfinite_gradient_steps.sum())
 
     # ------------------------------------------------------------------------------------------- step
     def step(self, joint_q, joint_qd, control: Control, params) -> StepOutput:
@@ -283,13 +297,13 @@ def _clip_outlier_worlds(sim: HandSimulator, grads: list[torch.Tensor | None]) -
     state = torch.cat([grads[0], grads[1]], dim=-1).norm(dim=-1)
     limit = sim.adjoint_clip * state.median()
     scale = torch.where(state > limit, limit / state.clamp_min(torch.finfo(state.dtype).tiny), torch.ones_like(state))
-    sim._clipped += (scale < 1).sum()  # on the device: no host synchronisation in the backward pass
+    sim.clipped_adjoint_steps += scale < 1  # on the device: no host synchronisation in the backward pass
     return [None if g is None else g * scale.view(-1, *([1] * (g.dim() - 1))) for g in grads]
 
 
 def _zero_nonfinite(sim: HandSimulator, grads: list[torch.Tensor | None]) -> list[torch.Tensor | None]:
     """The gradients with every row (world) that holds an infinite or NaN entry set to zero, counted in
-    :attr:`HandSimulator.nonfinite_gradients`: a world whose adjoint overflowed in stiff contact, or whose state
+    :attr:`HandSimulator.nonfinite_gradient_steps` (and, on CPU, warned about): a world whose adjoint overflowed in stiff contact, or whose state
     blew up (the env resets it), must not poison the batch's gradient, and its finite entries are no more
     trustworthy than the others. The other worlds' rows are returned unchanged (as copies: the trajectory's
     buffers are reused)."""
@@ -297,7 +311,10 @@ def _zero_nonfinite(sim: HandSimulator, grads: list[torch.Tensor | None]) -> lis
     bad = torch.zeros(sim.num_worlds, dtype=torch.bool, device=sim.torch_device)
     for g in present:
         bad |= ~torch.isfinite(g.reshape(g.shape[0], -1)).all(-1)
-    sim._nonfinite += bad.sum()  # on the device: no host synchronisation in the backward pass
+    sim.nonfinite_gradient_steps += bad  # on the device: no host synchronisation in the backward pass
+    if sim.device.is_cpu and bool(bad.any()):  # a free read on the host; on a GPU the trainer reads the counts
+        warnings.warn(f"{int(bad.sum())} of {sim.num_worlds} worlds had a non-finite gradient this step (their "
+                      "adjoint overflowed, or their state blew up); it was set to zero", RuntimeWarning, stacklevel=2)
     zero = torch.zeros((), dtype=present[0].dtype, device=present[0].device) if present else None
     return [None if g is None else torch.where(bad.view(-1, *([1] * (g.dim() - 1))), zero, g) for g in grads]
 

@@ -17,7 +17,7 @@ from .kernels import build_kernels
 from .mjcf_shapes import MAX_PLANES
 from .energy import scene_object_energy
 from .model import HINGE, OBJECT_FREE, OBJECT_HINGE, ContactParams, SceneModel
-from .hand_sim import HandSimulator
+from .hand_sim import PAST_STOP_HINGE, HandSimulator
 from .stepper import Trajectory, launch_stream
 
 __all__ = ["Simulator"]
@@ -185,6 +185,14 @@ class Simulator(HandSimulator):
     @property
     def object_is_free(self) -> bool:
         return self.scene.object_kind == OBJECT_FREE
+
+    def outside_physics(self, joint_q, body_pose, params=None) -> torch.Tensor:
+        # no table in these scenes (a dropped cube is its task's termination): only a limited hinge's range
+        if not self.scene.object_limited:
+            return torch.zeros(joint_q.shape[0], dtype=torch.bool, device=joint_q.device)
+        lower, upper = self.scene.object_range
+        angle = joint_q[:, self.nu]
+        return (angle < lower - PAST_STOP_HINGE) | (angle > upper + PAST_STOP_HINGE)
 
     def object_energy(self, joint_q, joint_qd, params=None) -> torch.Tensor:
         params = self.default_params() if params is None else params
