@@ -17,8 +17,8 @@ trip counts (exact adjoints); everything is generic in the float type.
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
+import dataclasses
 import functools
-import types
 
 import warp as wp
 
@@ -35,6 +35,21 @@ GEOM_SKIP_MARGIN = 1.0e-5  # m: a geom is skipped only when its bound lies this 
 # m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
 # 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
 SDF_PAD = 0.02
+
+
+@dataclasses.dataclass(frozen=True)
+class HandKernels:
+    """What :func:`build_hand_kernels` builds for one scene structure: the model struct type, the kernels and the
+    warp types they use."""
+
+    Model: type  # the hand's model struct (a wp.struct)
+    finger_contact: object  # wp.Kernel: each finger link's contact with the object's bodies
+    hand_substep: object  # wp.Kernel: each finger's implicit solve
+    observe: object  # wp.Kernel: body poses and fingertips
+    geom_distance: object  # wp.func: a point's signed distance to a geom (probe kernels)
+    vec3: type
+    mat33: type
+    dtype: type
 
 
 @functools.lru_cache(maxsize=None)
@@ -404,5 +419,5 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         for b in range(B):
             write_pose(pose, w, F * J + b, body_x[w, b], body_R[w, b])
 
-    return types.SimpleNamespace(Model=Model, finger_contact=finger_contact, hand_substep=hand_substep,
-                                 observe=observe, geom_distance=geom_distance, vec3=vec3, mat33=mat33, dtype=dtype)
+    return HandKernels(Model=Model, finger_contact=finger_contact, hand_substep=hand_substep, observe=observe,
+                       geom_distance=geom_distance, vec3=vec3, mat33=mat33, dtype=dtype)

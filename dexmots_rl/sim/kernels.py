@@ -16,6 +16,7 @@ compiler drops the adjoint terms that would only flow into the model; the contac
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
+import dataclasses
 import functools
 import os
 import types
@@ -43,6 +44,30 @@ FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
 # columns of the packed per-world parameter array, by name (model.OBJECT_PARAMS)
 P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
                                               ("joint_damping", "joint_friction", "joint_stiffness", "joint_rest"))
+
+
+@dataclasses.dataclass(frozen=True)
+class Kernels:
+    """What :func:`build_kernels` builds for one scene structure: the model and saved-results struct types, the
+    substep and observation kernels, functions probe kernels call (tests) and the warp types they all use."""
+
+    Model: type  # the scene's model struct (a wp.struct)
+    Saved: type  # the per-call results a taped step keeps for the reverse pass (a wp.struct)
+    substep: object  # wp.Kernel: one substep of every world
+    observe: object  # wp.Kernel: body poses and fingertips
+    object_sdf: object  # wp.func: a point's signed distance to the object (probe kernels)
+    contact_force: object  # wp.func: the contact law (probe kernels)
+    link_inertia: object  # wp.func: a link's mass-matrix and bias contribution (probe kernels)
+    palm: object  # the palm-contact functions (probe kernels), None without palm contact
+    vec3: type
+    vec4: type
+    mat33: type
+    vec7: type
+    vecC: type
+    vecJ: type
+    matJ3: type
+    mat43: type
+    matJJ1: type
 
 
 @functools.lru_cache(maxsize=None)
@@ -511,13 +536,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo, Ro, vo, wo = object_frame(m, q, qd, w)
         write_pose(body_pose, w, F * J, xo, Ro)
 
-    class Kernels:
-        pass
-
-    ns = Kernels()
-    ns.Model, ns.Saved, ns.substep, ns.observe = Model, Saved, substep, observe
-    ns.object_sdf, ns.contact_force = contact.object_sdf, contact.contact_force  # for probe kernels (tests)
-    ns.vec3, ns.vec4, ns.mat33, ns.vec7, ns.vecC, ns.vecJ, ns.matJ3, ns.mat43 = vec3, vec4, mat33, vec7, vecC, vecJ, matJ3, mat43
-    ns.matJJ1, ns.link_inertia = matJJ1, link_inertia
-    ns.palm = palm  # palm-contact functions (for probe kernels), None without palm contact
-    return ns
+    return Kernels(Model=Model, Saved=Saved, substep=substep, observe=observe, object_sdf=contact.object_sdf,
+                   contact_force=contact.contact_force, link_inertia=link_inertia, palm=palm, vec3=vec3, vec4=vec4,
+                   mat33=mat33, vec7=vec7, vecC=vecC, vecJ=vecJ, matJ3=matJ3, mat43=mat43, matJJ1=matJJ1)

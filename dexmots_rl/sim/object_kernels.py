@@ -19,8 +19,8 @@ variants have a leading variant dimension, and each kernel reads the row of its 
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
+import dataclasses
 import functools
-import types
 
 import warp as wp
 
@@ -31,6 +31,22 @@ __all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
 
 LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth, or 5 % of a shorter range
 JOINT_FRICTION_VELOCITY = 0.05  # rad/s (or m/s): smoothing of the joints' Coulomb friction
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectKernels:
+    """What :func:`build_object_kernels` builds for one object tree structure: the model struct type, the kernels
+    and the warp types they use."""
+
+    Model: type  # the object's model struct (a wp.struct)
+    substep: object  # wp.Kernel: the tree's implicit solve
+    frames: object  # wp.Kernel: every body's frame and velocity
+    table_contact: object  # wp.Kernel: the table's push on each body
+    table: bool  # the scene has a table (else table_contact is never launched)
+    sum_contacts: object  # wp.Kernel: each body's total contact and the hand's running means
+    vec3: type
+    mat33: type
+    dtype: type
 
 
 @functools.lru_cache(maxsize=None)
@@ -432,6 +448,5 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         contact_Kvw[w, b] = contact_Kvw[w, b] + Kvw
         contact_Kww[w, b] = contact_Kww[w, b] + Kww
 
-    ns = types.SimpleNamespace(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
-                               sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)
-    return ns
+    return ObjectKernels(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
+                         sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)

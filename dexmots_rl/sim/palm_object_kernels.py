@@ -10,14 +10,24 @@ fixed).
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
+import dataclasses
 import functools
-import types
 
 import warp as wp
 
 from .kernel_funcs import build_funcs
 
 __all__ = ["build_palm_object_kernels"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PalmObjectKernels:
+    """What :func:`build_palm_object_kernels` builds: the palm's model struct type, its kernel and warp types."""
+
+    Model: type  # the palm's model struct (a wp.struct)
+    palm_contact: object  # wp.Kernel: the palm boxes' push on each object body
+    vec3: type
+    mat33: type
 
 
 @functools.lru_cache(maxsize=None)
@@ -116,4 +126,4 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         out_Kvw[w, b] = contact_Kvw[w, b] + Kvw
         out_Kww[w, b] = contact_Kww[w, b] + Kww
 
-    return types.SimpleNamespace(Model=Model, palm_contact=palm_contact, vec3=vec3, mat33=mat33)
+    return PalmObjectKernels(Model=Model, palm_contact=palm_contact, vec3=vec3, mat33=mat33)
