@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from dexmots_rl.envs import list_tasks
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 HYDRA_APPS = {"dexmots-train", "dexmots-table"}
@@ -98,3 +100,17 @@ def test_readme_command_parses(argv, monkeypatch, capsys):
                 main(args)
             except SystemExit as exc:  # argparse's error exit
                 pytest.fail(f"{' '.join(argv)}: the parser refused it (exit {exc.code}):\n{capsys.readouterr().err}")
+
+
+def _task_table_rows() -> dict[str, str]:
+    """The README task table's rows by task name (the first cell, `name`)."""
+    rows = re.findall(r"^\| `(\w+)` \| (.*)$", README.read_text(), re.M)
+    return {name: rest for name, rest in rows}
+
+
+@pytest.mark.parametrize("task", list_tasks())
+def test_the_task_table_has_a_row_for_every_registered_task(task):
+    """Every task a user can train has a row; a trained one says how it did and links the measurement."""
+    rows = _task_table_rows()
+    assert task in rows, f"README's task table lacks {task}"
+    assert task == "operate" or "](docs/results.md#" in rows[task], rows[task]
