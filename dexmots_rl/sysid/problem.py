@@ -61,7 +61,7 @@ def coordinate_kinds(sim) -> list[str]:
     from ..sim import SLIDE
 
     hand = ["position" if k == SLIDE else "angle" for k in sim.scene.joint_type]
-    tree = getattr(sim, "tree", None)
+    tree = sim.object_tree
     if tree is None:  # one hinged or free object (the knob, the cube)
         return hand + (["angle"] if sim.scene.articulated else ["position"] * 3 + ["quaternion"] * 4)
     base = ["position"] * 3 + ["quaternion"] * 4 if tree.free else []
