@@ -2,7 +2,7 @@
 Table 2 runs it — our PPO (:mod:`.ppo`, torchrl's ``ClipPPOLoss`` unchanged) with PGDM's observation,
 reward, start and initialisation.
 
-    dexmots-train algo=pgdm task=screw_claw torch_threads=1
+    dexmots-train algo=pgdm task=screw_claw
     dexmots-train algo=pgdm task=stapler budget.wall_clock_s=600
 
 What PGDM changes (everything else, the evaluation included, is the task's and PPO's):
