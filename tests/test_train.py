@@ -168,3 +168,23 @@ def test_every_algorithm_config_has_a_registered_method_and_back():
         assert algorithm(name).config == name
     with pytest.raises(ValueError, match="known: ahac, mpc, pgdm, ppo, sac, shac"):
         algorithm("dreamer")
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (Path(CONFIG_DIR) / "algo").glob("*.yaml")))
+def test_every_method_runs_torch_on_one_thread_by_default(name, monkeypatch):
+    """More torch threads wait on each other on a busy machine (docs/results.md, threads): every method's
+    composed config asks for one, and the trainer sets it before the method starts."""
+    from dexmots_rl.algorithms import registry
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"algo={name}"])
+    assert cfg.torch_threads == 1
+    seen = []
+    monkeypatch.setattr(registry, "train", lambda cfg, overrides=None: seen.append(torch.get_num_threads()) or {})
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        train(cfg)
+    finally:
+        torch.set_num_threads(before)
+    assert seen == [1]
