@@ -3,7 +3,7 @@
 The shell commands of the README's code blocks that start with a ``dexmots-*`` script are checked in process,
 without running them: the hydra apps (``dexmots-train``, ``dexmots-table``) compose their config with ``--cfg job``
 appended, the argparse apps parse their arguments (the parser is stopped right after it accepts them), and
-``dexmots-record`` parses its ``key=value`` tokens.
+``dexmots-record`` composes its ``key=value`` overrides.
 """
 
 from __future__ import annotations

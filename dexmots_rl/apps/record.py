@@ -7,15 +7,16 @@
     dexmots-record task=screw_claw episodes=20 live=true out=live.mcap     # + dexmots-view live.mcap --live
     dexmots-record task=screw_claw task.damping_range=[0.5,0.5] out=knob.mcap  # a task config field
 
-Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``task`` (screw_claw), ``episodes`` (1),
-``out`` (run.mcap), ``num_envs`` (4), ``steps`` (100; with a checkpoint, the task's episode length),
-``seed`` (0), ``device`` (cpu), ``policy`` (``auto``: the task's scripted controller where it has one —
-screw_claw's grasp-and-twist, in torque space — and uniform random actions elsewhere; ``scripted``; or
-``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file
-or run directory: its task config builds the env and its actor acts deterministically) and ``live``
-(rewrite the file after every episode); ``task.<field>=<value>`` sets a field of the task's config (without a
-checkpoint; e.g. ``task.object_params=knob.json`` records the object with those parameters). Every episode is a reset followed by ``steps`` steps in every
-world; the summary is printed as one JSON line.
+Arguments are hydra overrides, ``key=value``, of ``configs/record/config.yaml`` (its comments say what each
+key does): ``task`` (screw_claw), ``episodes`` (1), ``out`` (run.mcap), ``num_envs`` (4), ``steps`` (the task's
+episode length), ``seed`` (0), ``device`` (cpu), ``policy`` (``auto``: the task's scripted controller where it
+has one — screw_claw's grasp-and-twist, in torque space — and uniform random actions elsewhere; ``scripted``;
+or ``random``), ``checkpoint`` (a ``dexmots-train`` checkpoint file or run directory: its task config builds
+the env and its actor acts deterministically) and ``live`` (rewrite the file after every episode);
+``task.<field>=<value>`` sets a field of the task's typed config as in ``dexmots-train`` (without a
+checkpoint; e.g. ``task.object_params=knob.json`` records the object with those parameters). An unknown key, a
+bad value or a ``+key=...`` no config declares fails naming the key. Every episode is a reset followed by
+``steps`` steps in every world; the summary is printed as one JSON line.
 
 Example:
     >>> import os, tempfile
@@ -33,51 +34,53 @@ import logging
 import sys
 from pathlib import Path
 
+from typing import Optional
+
 import torch
-import yaml
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ..envs import ScriptedPolicy, make_env
+from ..envs import ScriptedPolicy, make_env, task_config
+from ..envs.config import override_config
+from ..envs.fields import check_value, rule
 from ._policies import POLICIES, choose_policy
 
-__all__ = ["DEFAULTS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
+__all__ = ["RECORD_FIELDS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
 
 log = logging.getLogger(__name__)
 
-DEFAULTS = {"task": "screw_claw", "episodes": 1, "out": "run.mcap", "num_envs": 4, "steps": None, "seed": 0,
-            "device": "cpu", "policy": "auto", "checkpoint": None, "live": False}
+#: the run keys (``configs/record/config.yaml`` has the defaults) -> (type, rule)
+RECORD_FIELDS = {"episodes": (int, rule(ge=1)), "out": (str, None), "num_envs": (int, rule(ge=1)),
+                 "steps": (Optional[int], rule(ge=1)), "seed": (int, rule(ge=0)), "device": (str, None),
+                 "policy": (str, rule(choices=POLICIES)), "checkpoint": (Optional[str], None), "live": (bool, None)}
 
 
 def parse_overrides(tokens: list[str]) -> dict:
-    """``["key=value", ...]`` -> the options dict (types from :data:`DEFAULTS`); unknown keys are errors."""
-    opts = {**DEFAULTS, "task_overrides": {}}
-    for token in tokens:
-        key, sep, value = token.removeprefix("--").partition("=")
-        if sep and key.startswith("task.") and len(key) > 5:  # a task config field, its value read as YAML
-            opts["task_overrides"][key[5:]] = yaml.safe_load(value)
-            continue
-        key = key.replace("-", "_")
-        if not sep or key not in DEFAULTS:
-            raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)} "
-                             "or task.<field>")
-        if key in ("episodes", "num_envs", "steps", "seed"):
-            try:
-                opts[key] = int(value)
-            except ValueError:
-                raise ValueError(f"{key} must be an integer, got {value!r}") from None
-            if opts[key] < (0 if key == "seed" else 1):
-                raise ValueError(f"{key} must be positive, got {value}")
-        elif key == "live":
-            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError(f"live must be true or false, got {value!r}")
-            opts[key] = value.lower() in ("true", "1", "yes")
-        else:
-            opts[key] = value
+    """``["key=value", ...]`` (hydra overrides of ``configs/record/config.yaml``; a leading ``--`` is dropped)
+    -> the options: the keys of :data:`RECORD_FIELDS`, ``task`` (its name) and ``task_overrides`` (the task
+    fields the command line set, typed by the task's config). ``ValueError`` naming a bad key or value."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from .config_keys import declared_config, refuse_unknown_keys
+    from .train import CONFIG_DIR
+
+    overrides = [token.removeprefix("--") for token in tokens]
+    try:
+        with initialize_config_dir(config_dir=str(CONFIG_DIR / "record"), version_base="1.3"):
+            cfg = compose("config", overrides=overrides)
+    except Exception as e:  # hydra's composition errors name the override
+        raise ValueError(str(e).splitlines()[0]) from None
+    refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "record"), (f"task={cfg.task.name}",)), free=("task",))
+    values = OmegaConf.to_container(cfg, resolve=True)
+    opts = {key: check_value(key, values[key], annotation, key_rule)
+            for key, (annotation, key_rule) in RECORD_FIELDS.items()}
+    given = dict.fromkeys(o.lstrip("+").partition("=")[0].split(".")[1] for o in overrides
+                          if o.lstrip("+").startswith("task."))
+    opts.update(task=cfg.task.name, task_overrides={field: values["task"][field] for field in given})
     if opts["checkpoint"] and opts["task_overrides"]:
         raise ValueError(f"task.{next(iter(opts['task_overrides']))}: a checkpoint's own task config builds the env; "
                          "task fields apply without a checkpoint")
-    if opts["policy"] not in POLICIES:
-        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {opts['policy']!r}")
+    override_config(task_config(opts["task"]), opts["task_overrides"])  # a bad task field fails now, named
     return opts
 
 
