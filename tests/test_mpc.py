@@ -158,6 +158,10 @@ def test_dexmots_train_algo_mpc_writes_the_evaluation(tmp_path):
     per_step = (2 + 2) * 3  # 2 candidates + 2 refinement passes, each 3 steps ahead
     assert metrics["sim_steps_per_control_step"] == per_step and metrics["grad_steps_per_control_step"] == 3
     assert metrics["sim_steps"] == 2 * 4 * per_step and metrics["grad_steps"] == 2 * 4 * 3
+    # the planning's cost per evaluation episode beside its success (dexmots-table reports it)
+    assert metrics["sim_steps_per_episode"] == 4 * per_step and metrics["grad_steps_per_episode"] == 4 * 3
+    assert 0 < metrics["planning_cpu_s_per_episode"] == pytest.approx(metrics["planning_cpu_s"] / 2, abs=0.01)
+    assert 0 < metrics["planning_wall_s_per_episode"] == pytest.approx(metrics["wall_clock_s"] / 2, abs=0.01)
     rows = (run / "metrics.jsonl").read_text().splitlines()
     assert len(rows) == 1 and json.loads(rows[0])["sim_steps"] == metrics["sim_steps"]
     assert (run / "config.yaml").is_file() and not (run / "checkpoints").exists()
