@@ -320,3 +320,33 @@ def test_learning_curves_draw_a_planner_as_a_level():
         level = lines["MPC (2 seeds, no training)"]
         assert list(level.get_ydata()) == [50.0, 50.0] and level.get_linestyle() == "--"
         assert len(lines["Ours (2 seeds)"].get_xdata()) > 1
+
+
+def test_the_equal_steps_view_reads_each_run_at_the_fewest_env_steps_of_its_task():
+    from dexmots_rl.apps.table_views import add_equal_steps, equal_steps_table, planning_cost, planning_cost_table
+
+    def row(method, seed, env_steps, success, stopped_by="cpu_s"):
+        return {"task": "screw_claw", "method": method, "seed": seed, "experiment": "table", "status": "finished",
+                "stopped_by": stopped_by, "env_steps": env_steps, "success": success, "run_dir": f"{method}{seed}"}
+
+    curves = {  # periodic evaluations, then the final one at the run's last env step
+        "dexmots0": [{"env_steps": 5_000, "success": 0.6}, {"env_steps": 10_000, "success": 0.9}],
+        "dexmots1": [{"env_steps": 4_000, "success": 0.4}, {"env_steps": 12_000, "success": 1.0}],
+        "ppo0": [{"env_steps": 6_000, "success": 0.1}, {"env_steps": 90_000, "success": 0.8}],
+        "ppo1": [{"env_steps": 20_000, "success": 0.3}, {"env_steps": 80_000, "success": 0.7}],  # none by 10k
+    }
+    rows = add_equal_steps([row("dexmots", 0, 10_000, 0.9), row("dexmots", 1, 12_000, 1.0),
+                            row("ppo", 0, 90_000, 0.8), row("ppo", 1, 80_000, 0.7),
+                            row("mpc", 0, 400, 0.5, stopped_by="no_training")], curves.get)
+    assert [r.get("success_at_equal_steps") for r in rows] == [0.9, 0.4, 0.1, None, None]
+    assert {r.get("equal_env_steps") for r in rows[:4]} == {10_000} and "equal_env_steps" not in rows[4]
+    methods = METHODS + [("mpc", "MPC")]
+    assert equal_steps_table(rows, TASKS[:1], methods) == (
+        "| Environment | Ours | PPO | MPC | Env steps |\n|---|---:|---:|---:|---:|\n"
+        "| Screw-top (Claw) | 65.0 ± 35.4 | 10.0 (n=1) | no training | 10,000 |")
+    # a planner's cost: its per-episode figures, or (older runs) its totals over the episodes
+    rows[4].update(planning_cost({"episodes": 4, "sim_steps": 4_000, "wall_clock_s": 2.0}))
+    assert rows[4]["planning_sim_steps_per_episode"] == 1_000 and rows[4]["planning_wall_s_per_episode"] == 0.5
+    assert planning_cost_table(rows, TASKS, "mpc") == (
+        "| Environment | success % | sim steps / episode | CPU s / episode | wall s / episode |\n"
+        "|---|---:|---:|---:|---:|\n| Screw-top (Claw) | 50.0 | 1,000 | – | 0.50 |")

@@ -29,7 +29,8 @@ How it works (configs/table/: ``config.yaml`` and the ``preset`` group):
    learning curves come from periodic evaluations (``eval.every`` per method in the preset,
    ``eval.curve_episodes`` episodes each).
 4. Outputs in ``sweep_dir``: ``runs.csv`` (one row per run), ``table.md`` (Table 2's layout and the time to
-   90 % success: :mod:`dexmots_rl.apps.table_writer`), ``curves_<task>.png`` (Fig. 3c) and
+   90 % success: :mod:`dexmots_rl.apps.table_writer`; the same runs at an equal number of env steps, and a
+   planner's cost per evaluation episode: :mod:`dexmots_rl.apps.table_views`), ``curves_<task>.png`` (Fig. 3c) and
    ``action_space_<task>.png`` (Fig. 3b: :mod:`dexmots_rl.viz.table_plots`). A progress bar on stderr (on a
    terminal) counts finished runs; the table is printed at the end.
 
@@ -209,8 +210,9 @@ def _launch(loader, master, runs) -> dict[str, str]:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_writer import (action_space_table, budget_cell, budget_text, machines_text, markdown_table,
-                               quoted_table, time_to_success_table)
+    from .table_views import equal_steps_table, planning_cost_table
+    from .table_writer import (NO_TRAINING, action_space_table, budget_cell, budget_text, machines_text,
+                               markdown_table, quoted_table, time_to_success_table)
 
     tasks = [(t, spec.task_labels[t]) for t in spec.tasks]
     budgets = {t: spec.budget_of(t) for t in spec.tasks}
@@ -229,7 +231,17 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
              *([machines, ""] if machines else []),
              f"Training {_clock_words(budgets)} to 90 % success (mean over the runs that reached it, from the "
              "periodic and final evaluations; (reached/finished runs)):", "",
-             time_to_success_table(table_rows, tasks, methods), ""]
+             time_to_success_table(table_rows, tasks, methods), "",
+             "The same runs at an equal number of env steps per task (the fewest any trained run of the task "
+             "collected, last column): each run's last evaluation at or before it (periodic evaluations of "
+             "eval.curve_episodes episodes, or the final one), success %:", "",
+             equal_steps_table(table_rows, tasks, methods), ""]
+    for name, label in methods:
+        if any(r["method"] == name and r["status"] == "finished" and r["stopped_by"] == NO_TRAINING
+               for r in table_rows):
+            lines += [f"{label} learns nothing and plans in every evaluation episode: its success beside the "
+                      "planning per episode (mean over seeds; forward sim steps, CPU and wall seconds):", "",
+                      planning_cost_table(table_rows, tasks, name), ""]
     if any(spec.paper_table.get(t) for t in spec.tasks):
         lines += ["The paper's own Table 2 on the same tasks, quoted (not measured here: its simulator and hand "
                   "models, its training budgets, five seeds; success % at its tasks' thresholds):", "",
@@ -291,7 +303,8 @@ def run_table(cfg) -> dict:
     """Check the spec, run what is not finished, write runs.csv, table.md and the figures; returns
     ``{"sweep_dir", "runs", "launched", "skipped", "failed", "table"}``."""
     from .. import envs
-    from .table_writer import run_row, write_csv
+    from .table_writer import NO_TRAINING, learning_curve, run_row, write_csv
+    from .table_views import add_equal_steps, planning_cost
     from ..algorithms.registry import list_algorithms
     from .config_keys import refuse_undeclared_table_keys
     from .table_spec import finished_metrics, replaced_runs, sweep_spec
@@ -326,7 +339,11 @@ def run_table(cfg) -> dict:
     for run in runs:
         metrics = finished_metrics(run)
         status = "finished" if metrics is not None else ("failed" if run.name in failures else "missing")
-        rows.append(run_row(run, metrics, status))
+        row = run_row(run, metrics, status)
+        if metrics is not None and row["stopped_by"] == NO_TRAINING:  # a planner: its cost per episode
+            row.update(planning_cost(metrics))
+        rows.append(row)
+    rows = add_equal_steps(rows, learning_curve)
     write_csv(rows, spec.sweep_dir / "runs.csv")
     report = _report(spec, rows, failures, _figures(spec, runs, rows))
     (spec.sweep_dir / "table.md").write_text(report)

@@ -5,7 +5,8 @@ tables built from those rows alone, so a CSV can be rendered again (or tested) w
   rows of ``metrics.jsonl``, placed at the env steps and training wall-clock of their iteration) and the final
   evaluation of ``metrics.json``.
 * :func:`time_to_success` — the first point of a curve at or above a success rate (90 %).
-* :func:`run_row`, :func:`write_csv`, :func:`read_csv` — ``runs.csv`` (:data:`CSV_FIELDS`).
+* :func:`run_row`, :func:`write_csv`, :func:`read_csv` — ``runs.csv`` (:data:`CSV_FIELDS`; the columns of the
+  equal-env-steps view and of a planner's cost are filled by :mod:`.table_views`).
 * :func:`markdown_table` — Table 2's layout: tasks as rows, methods as columns, success in % as
   mean ± sample s.d. over seeds, and an Average row (mean of the task means ± mean of their s.d., as the paper);
   a Budget column when the tasks' training budgets differ.
@@ -42,9 +43,13 @@ __all__ = ["CSV_FIELDS", "NO_TRAINING", "action_space_runs", "action_space_table
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
               "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
-              "budget_env_steps", "budget_cpu_s", "machine", "commit", "date", "run_dir")
-_INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps")
-_FLOATS = ("success", "wall_clock_s", "cpu_s", "time_to_90_s", "budget_wall_clock_s", "budget_cpu_s")
+              "budget_env_steps", "budget_cpu_s", "machine", "commit", "date", "equal_env_steps",
+              "success_at_equal_steps", "planning_sim_steps_per_episode", "planning_cpu_s_per_episode",
+              "planning_wall_s_per_episode", "run_dir")
+_INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps", "equal_env_steps",
+         "planning_sim_steps_per_episode")
+_FLOATS = ("success", "wall_clock_s", "cpu_s", "time_to_90_s", "budget_wall_clock_s", "budget_cpu_s",
+           "success_at_equal_steps", "planning_cpu_s_per_episode", "planning_wall_s_per_episode")
 DASH = "–"  # a cell without finished runs
 # NO_TRAINING (:mod:`dexmots_rl.algorithms.budget`): the ``budget.stopped_by`` of a run that trains nothing
 # (``algo=mpc`` plans inside its evaluation episodes); the table reports "no training", not a time to 90 %
