@@ -269,6 +269,8 @@ def test_a_tiny_real_sweep_end_to_end(tmp_path):
     assert (result["launched"], result["unfinished"]) == (1, [])
     row = read_csv(tmp_path / "sweep" / "runs.csv")[0]
     assert row["status"] == "finished" and row["env_steps"] == 24 and row["stopped_by"] == "schedule"
+    # the one run is its task's fewest env steps: read at its end, the final evaluation
+    assert row["equal_env_steps"] == 24 and row["success_at_equal_steps"] == row["success"]
     assert table.run_table(_table_cfg(tmp_path, *spec, smoke))["launched"] == 0  # the same spec: finished
     # a longer run in the same sweep directory does not reuse the 2-iteration one: the real trainer's config.yaml
     longer = smoke.replace("total_frames=24", "total_frames=36")

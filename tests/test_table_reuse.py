@@ -75,3 +75,14 @@ def test_a_run_without_its_config_is_not_finished(tmp_path, fake_trainer):
     (sweep / "runs" / "screw_claw" / "ppo" / "vi" / "seed0" / "config.yaml").unlink()
     fake_trainer.clear()
     assert table.run_table(_table_cfg(sweep, *SMOKE))["launched"] == 1 and fake_trainer == [("ppo", 2)]
+
+
+def test_a_run_saved_before_a_task_field_was_added_is_still_finished(tmp_path, fake_trainer):
+    spec = ("tasks=[pump_dispenser]", "methods=[ppo]", *REAL)
+    table.run_table(_table_cfg(tmp_path, *spec))
+    saved = tmp_path / "runs" / "pump_dispenser" / "ppo" / "vi" / "seed0" / "config.yaml"
+    config = OmegaConf.load(saved)
+    del config.task["urdf"]  # what a run made before task.urdf existed saved
+    saved.write_text(OmegaConf.to_yaml(config))
+    result = table.run_table(_table_cfg(tmp_path, *spec))
+    assert (result["launched"], result["skipped"]) == (0, 1)

@@ -343,7 +343,7 @@ def run_table(cfg) -> dict:
         if metrics is not None and row["stopped_by"] == NO_TRAINING:  # a planner: its cost per episode
             row.update(planning_cost(metrics))
         rows.append(row)
-    rows = add_equal_steps(rows, learning_curve)
+    rows = add_equal_steps(rows, lambda run_dir: learning_curve(spec.sweep_dir / run_dir))  # runs.csv's: relative
     write_csv(rows, spec.sweep_dir / "runs.csv")
     report = _report(spec, rows, failures, _figures(spec, runs, rows))
     (spec.sweep_dir / "table.md").write_text(report)

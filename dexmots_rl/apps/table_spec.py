@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from ..envs import ACTION_TYPES
+from ..envs.config import ADDED_WITH_THE_OLD_BEHAVIOUR
 
 __all__ = ["IDENTITY_IGNORED", "Method", "Run", "SweepSpec", "SweepSpecError", "finished_metrics", "replaced_runs",
            "run_identity", "sweep_spec"]
@@ -386,6 +387,9 @@ def finished_metrics(run: Run) -> dict | None:
         return None
     if run.identity is not None:
         stored = _stored_identity(run.run_dir)
+        if stored is not None and isinstance(stored.get("task"), dict):  # fields the saved config predates
+            task = run.identity.get("task") or {}
+            stored["task"] = {**{k: task[k] for k in ADDED_WITH_THE_OLD_BEHAVIOUR if k in task}, **stored["task"]}
         if stored != run.identity:
             differs = "no readable config.yaml" if stored is None else ", ".join(_differences(stored, run.identity))
             log.debug("%s: finished with another config (%s): not this sweep's run", run.name, differs)

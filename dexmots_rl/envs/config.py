@@ -28,7 +28,7 @@ from .rewards import RewardCoefficients
 from .transforms import GOAL_MODES
 
 __all__ = ["BenchPoses", "PlanProblem", "TaskConfig", "check_number", "check_range", "config_from_dict",
-           "override_config", "rule", "saved_config_defaults"]
+           "override_config", "rule", "saved_config_defaults", "ADDED_WITH_THE_OLD_BEHAVIOUR"]
 
 
 def check_number(name: str, value, low: float = 0.0, strict: bool = True) -> None:
@@ -102,6 +102,9 @@ def override_config(cfg: TaskConfig, overrides: dict[str, Any]) -> TaskConfig:
 # what it trained on (a field missing from a saved config otherwise takes today's default); a task's own field
 # applies to the configs that have it
 SAVED_CONFIG_DEFAULTS = {"mirror": False, "rest_on_palm": False}
+# fields added after runs were saved whose default is what those runs did: a saved config without one is the
+# same config as today's with its default (dexmots-table reuses such a finished run)
+ADDED_WITH_THE_OLD_BEHAVIOUR = ("urdf", "object_params")
 
 
 def saved_config_defaults(cls) -> dict[str, Any]:
