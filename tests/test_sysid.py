@@ -38,6 +38,25 @@ def test_residual_jacobian_matches_central_differences(knob_data):
     np.testing.assert_allclose(jac, fd, rtol=1e-4, atol=1e-4 * np.abs(fd).max())
 
 
+def test_start_state_gradients_match_central_differences(knob_data):
+    """With free_starts the objective's gradient w.r.t. the segments' start offsets (and the parameters) comes from
+    the same reverse pass: against central differences in float64. Only L-BFGS estimates them."""
+    problem = ShootingProblem(knob_data, list(TRUTH), segment_steps=4, max_segments=3, validation=0.0,
+                              free_starts=True)
+    x = torch.as_tensor(np.concatenate([problem.space.to_z([0.4, 0.7]),
+                                        0.3 * np.random.default_rng(0).standard_normal(problem.num_start_variables)]))
+    _, grad = problem.loss_and_grad(x)
+    eps, fd = 1e-6, np.zeros(len(x))
+    for i in range(len(x)):
+        plus, minus = x.clone(), x.clone()
+        plus[i] += eps
+        minus[i] -= eps
+        fd[i] = (problem.loss_and_grad(plus)[0] - problem.loss_and_grad(minus)[0]).item() / (2 * eps)
+    np.testing.assert_allclose(grad.numpy(), fd, rtol=1e-4, atol=1e-5 * np.abs(fd).max())
+    with pytest.raises(ValueError, match="^free_starts: only method=lbfgs"):
+        identify(problem, "gn", iterations=1)
+
+
 def test_articulated_parameter_gradients_match_central_differences():
     """An articulated object's joint parameters (damping, friction, stiffness, rest of the spray bottle's trigger)
     get gradients through the hand-and-object step, in float64, equal to central differences."""

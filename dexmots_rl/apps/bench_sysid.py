@@ -30,7 +30,8 @@ def add_sysid_parser(sub) -> None:
     p.add_argument("--counts", type=int, nargs="+", default=None, help="parameter counts (default: all of them)")
     p.add_argument("--truth", nargs="+", default=[], metavar="NAME=VALUE",
                    help="true values (default: the scene's nominal ones)")
-    p.add_argument("--methods", nargs="+", default=["lbfgs", "gn", "fd-gn", "cmaes"])
+    p.add_argument("--methods", nargs="+", default=["lbfgs", "gn", "fd-gn", "cmaes"],
+                   help="lbfgs, gn, fd-gn, cmaes, and lbfgs+starts (L-BFGS estimating the segments' start states too)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--scales", type=float, nargs="+", default=[0.5, 2.0])
     p.add_argument("--worlds", type=int, default=4)
@@ -84,8 +85,9 @@ def run_sysid_bench(args) -> dict:
             for scale in args.scales:
                 for method in args.methods:
                     problem = ShootingProblem(data, chosen, segment_steps=args.segment_steps, seed=seed,
-                                              initial=_initial(chosen, truth, scale, positive))
-                    result = identify(problem, method, iterations=args.iterations, seed=seed)
+                                              initial=_initial(chosen, truth, scale, positive),
+                                              free_starts=method == "lbfgs+starts")
+                    result = identify(problem, method.partition("+")[0], iterations=args.iterations, seed=seed)
                     reached = None
                     for record in result.history:
                         if _errors(problem.space.values_np(record["z"]), true).max() <= args.tolerance:

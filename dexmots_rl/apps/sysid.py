@@ -12,7 +12,8 @@ Gauss-Newton on the exact Jacobian; ``fd-gn`` and ``cmaes``: the finite-differen
 references), ``iterations`` (30), ``segment_steps`` (8: env steps per shooting segment), ``validation`` (0.25:
 the share of segments held out), ``max_segments`` (none), ``seed`` (0), ``init.<name>=<value>`` (an initial guess;
 default the scene's nominal value), ``bounds.<name>=<low>,<high>``, ``position_scale`` (0.001 m) and
-``angle_scale`` (0.01 rad): the measurement noise the residuals are divided by, and ``report`` (a folder; default
+``angle_scale`` (0.01 rad): the measurement noise the residuals are divided by, ``free_starts`` (false; with
+``lbfgs``: the segments' start positions are estimated too, for noisy data), and ``report`` (a folder; default
 ``<out without .json>_report``). Prints one JSON line: the values, their standard deviations, the condition
 number, the unidentifiable parameters and the replay errors; the report folder holds the text and the plots.
 """
@@ -33,7 +34,7 @@ log = logging.getLogger(__name__)
 
 DEFAULTS = {"data": None, "params": None, "out": None, "method": "lbfgs", "iterations": 30, "segment_steps": 8,
             "validation": 0.25, "max_segments": None, "seed": 0, "position_scale": 1e-3, "angle_scale": 1e-2,
-            "report": None}
+            "free_starts": False, "report": None}
 _INTS, _FLOATS = ("iterations", "segment_steps", "max_segments", "seed"), ("validation", "position_scale",
                                                                           "angle_scale")
 
@@ -64,6 +65,11 @@ def parse_overrides(tokens: list[str]) -> dict:
         if not sep or key not in DEFAULTS:
             raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)}, "
                              "init.<name> or bounds.<name>")
+        if key == "free_starts":
+            if value.lower() not in ("true", "false"):
+                raise ValueError(f"free_starts must be true or false, got {value!r}")
+            opts[key] = value.lower() == "true"
+            continue
         opts[key] = (_number(key, value, int) if key in _INTS else _number(key, value, float) if key in _FLOATS
                      else value)
     for key in ("data", "params", "out"):
@@ -86,7 +92,8 @@ def run(argv: list[str] | None = None) -> dict:
         problem = ShootingProblem(traj, opts["params"], segment_steps=opts["segment_steps"],
                                   validation=opts["validation"], seed=opts["seed"], initial=opts["init"],
                                   bounds=opts["bounds"], max_segments=opts["max_segments"],
-                                  position_scale=opts["position_scale"], angle_scale=opts["angle_scale"])
+                                  position_scale=opts["position_scale"], angle_scale=opts["angle_scale"],
+                                  free_starts=opts["free_starts"])
         result = identify(problem, opts["method"], iterations=opts["iterations"], seed=opts["seed"])
         out = Path(opts["out"])
         report = Path(opts["report"] or out.with_name(out.stem + "_report"))

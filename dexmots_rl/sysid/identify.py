@@ -4,7 +4,8 @@ At the answer the Gauss-Newton matrix ``H = J^T J`` (the Jacobian of the trainin
 unconstrained coordinates: log values of positive parameters) gives the covariance ``s^2 H^-1`` (``s^2`` the
 residual variance, sum of squares over ``m - p``), mapped to the parameters' own units, and its condition
 number; the eigenvectors of ``H`` whose eigenvalue is below ``1 / max_condition`` of the largest are the
-directions the data cannot tell apart, named by the parameters that dominate them. The held-out segments'
+directions the data cannot tell apart, named by the parameters that dominate them. (With ``free_starts`` the
+Jacobian is taken from the recorded starts, the start offsets held: the covariance then leaves out their share.) The held-out segments'
 replay error (the RMS residual in noise units, and per coordinate kind in metres and radians) is measured with
 the initial guess and with the answer.
 """

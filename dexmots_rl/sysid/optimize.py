@@ -37,9 +37,11 @@ def _record(problem: ShootingProblem, history: list, z, loss: float) -> None:
 
 
 def lbfgs(problem: ShootingProblem, z0: np.ndarray, iterations: int, tol: float = 1e-10) -> list[dict]:
-    """torch's L-BFGS for ``iterations`` iterations; every evaluation (line-search trials included) is recorded,
-    then the final iterate."""
-    z = torch.as_tensor(z0, dtype=problem.dtype).clone().requires_grad_(True)
+    """torch's L-BFGS for ``iterations`` iterations (over the parameters and, with the problem's ``free_starts``,
+    the segments' start offsets); every evaluation (line-search trials included) is recorded."""
+    p = len(z0)
+    z = torch.as_tensor(np.concatenate([z0, np.zeros(problem.num_start_variables)]), dtype=problem.dtype)
+    z = z.clone().requires_grad_(True)
     opt = torch.optim.LBFGS([z], lr=1.0, max_iter=iterations, max_eval=2 * iterations, history_size=20,
                             line_search_fn="strong_wolfe", tolerance_grad=tol, tolerance_change=tol)
     history: list[dict] = []
@@ -48,13 +50,10 @@ def lbfgs(problem: ShootingProblem, z0: np.ndarray, iterations: int, tol: float 
         opt.zero_grad()
         loss, grad = problem.loss_and_grad(z)
         z.grad = grad
-        _record(problem, history, z.detach().numpy(), float(loss))
+        _record(problem, history, z.detach().numpy()[:p], float(loss))
         return loss
 
     opt.step(closure)
-    final = z.detach().numpy()
-    if not np.array_equal(history[-1]["z"], final):
-        _record(problem, history, final, problem.loss(final))
     return history
 
 
@@ -138,6 +137,8 @@ def run_method(problem: ShootingProblem, method: str, iterations: int, z0: np.nd
     from zero."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; the methods are: {', '.join(METHODS)}")
+    if problem.free_starts and method != "lbfgs":
+        raise ValueError(f"free_starts: only method=lbfgs estimates the segments' start states, not {method!r}")
     z0 = problem.space.to_z(problem.space.initial) if z0 is None else z0
     problem.cost.start()
     if method == "lbfgs":

@@ -129,7 +129,10 @@ class ShootingProblem:
     ``bounds``: per-name initial guesses (default: the scene's nominal value) and ``(low, high)`` bounds;
     ``hand``: the residuals include the hand's joints (default), whose motion against the object carries most of
     what the data says about it (a gripped knob turns with the fingers whatever its friction; the fingers are
-    what the friction slows), else only the object's coordinates;
+    what the friction slows), else only the object's coordinates; ``free_starts``: each training segment's start
+    positions are estimated too (errors in variables: a recorded start is a noisy measurement, and in contact a
+    start that is off by the noise pushes the whole segment off), each offset charged like a residual (L-BFGS
+    only: their gradient comes with the parameters' in the same reverse pass);
     ``validation``: the share of segments held out (chosen by ``seed``); ``max_segments``: at most this many
     segments in all (evenly spaced), to bound the cost. The parameters not identified keep the values the
     recording was made with where it says them, else the scene's nominal values.
@@ -138,7 +141,7 @@ class ShootingProblem:
     def __init__(self, traj: Trajectories, names, *, segment_steps: int = 8, validation: float = 0.25,
                  seed: int = 0, initial: dict | None = None, bounds: dict | None = None,
                  max_segments: int | None = None, position_scale: float = 1e-3, angle_scale: float = 1e-2,
-                 hand: bool = True, dtype: torch.dtype = torch.float64):
+                 hand: bool = True, free_starts: bool = False, dtype: torch.dtype = torch.float64):
         if segment_steps < 1:
             raise ValueError(f"segment_steps must be a positive integer, got {segment_steps}")
         if not 0.0 <= validation < 1.0:
@@ -165,7 +168,13 @@ class ShootingProblem:
         self.space = ParamSpace.build(names, {**nominal, **(initial or {})}, bounds or {})
         self.nominal = nominal
         self._split(segment_steps, validation, seed, max_segments)
-        self.kinds = coordinate_kinds(sim)[self.first:]
+        kinds = coordinate_kinds(sim)
+        self.kinds = kinds[self.first:]
+        # the start positions free_starts may move (all but a quaternion's entries), and their noise scales
+        self.free_starts = free_starts
+        self.start_index = torch.as_tensor([i for i, k in enumerate(kinds) if k != "quaternion"], dtype=torch.long)
+        self._start_scales = torch.as_tensor(coordinate_scales([kinds[i] for i in self.start_index], position_scale,
+                                                               angle_scale), dtype=dtype)
         self._scales = torch.as_tensor(coordinate_scales(self.kinds, position_scale, angle_scale), dtype=dtype)
         self._sims: dict[int, object] = {}
         self.cost = Cost()
@@ -214,22 +223,26 @@ class ShootingProblem:
         return self._sims[n]
 
     # ------------------------------------------------------------------------------------------ rollouts
-    def residuals(self, z: torch.Tensor, index) -> torch.Tensor:
+    def residuals(self, z: torch.Tensor, index, starts: torch.Tensor | None = None) -> torch.Tensor:
         """[B, L, D] residuals of world ``b`` replaying segment ``index[b]`` with unconstrained parameters
-        ``z[b]`` ([B, P]; differentiable w.r.t. ``z``)."""
+        ``z[b]`` ([B, P]; differentiable w.r.t. ``z``), from its recorded start moved by ``starts[b]`` ([B, K]: the
+        start positions' offsets in noise units, :attr:`start_index`; None: the recorded start)."""
         index = torch.as_tensor(np.asarray(index), dtype=torch.long)
         out = []
         for lo in range(0, len(index), MAX_WORLDS):
-            out.append(self._replay(z[lo:lo + MAX_WORLDS], index[lo:lo + MAX_WORLDS]))
+            chunk = None if starts is None else starts[lo:lo + MAX_WORLDS]
+            out.append(self._replay(z[lo:lo + MAX_WORLDS], index[lo:lo + MAX_WORLDS], chunk))
         return torch.cat(out)
 
-    def _replay(self, z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    def _replay(self, z: torch.Tensor, index: torch.Tensor, starts: torch.Tensor | None) -> torch.Tensor:
         n, sim = len(index), self._sim(len(index))
         values = self.space.values(z)
         params = {name: value[index] for name, value in self.fixed.items()}
         for i, name in enumerate(self.space.names):
             params[name] = values[:, i:i + 1]
         q, qd = self.q0[index], self.qd0[index]
+        if starts is not None:
+            q = q + torch.zeros_like(q).index_add(1, self.start_index, starts * self._start_scales)
         preds = []
         for k in range(self.steps):
             control = Control(*(self.controls[c][index, k] for c in CONTROL_FIELDS))
@@ -256,15 +269,24 @@ class ShootingProblem:
             r = self.residuals(zt, np.tile(index, c))
         return r.reshape(c, s, -1).square().mean((1, 2)).numpy()
 
-    def loss_and_grad(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Training loss of shared ``z`` [P] and its gradient through the simulator (one forward and one reverse
-        pass over the training segments)."""
-        z = z.detach().clone().requires_grad_(True)
-        index = self.train_index
-        loss = self.residuals(z.expand(len(index), -1), index).square().mean()
+    def loss_and_grad(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Training objective and its gradient through the simulator (one forward and one reverse pass over the
+        training segments). ``x``: the shared ``z`` [P], then, with ``free_starts``, every training segment's start
+        offsets (noise units, [S * K]), which the objective also charges as measurements: the sum of squared
+        residuals and offsets, over the residuals' count."""
+        x = x.detach().clone().requires_grad_(True)
+        index, p = self.train_index, len(self.space.names)
+        starts = x[p:].view(len(index), -1) if self.free_starts else None
+        r = self.residuals(x[:p].expand(len(index), -1), index, starts)
+        loss = (r.square().sum() + (0.0 if starts is None else starts.square().sum())) / r.numel()
         loss.backward()
         self.cost.backward_steps += len(index) * self.steps
-        return loss.detach(), z.grad.detach()
+        return loss.detach(), x.grad.detach()
+
+    @property
+    def num_start_variables(self) -> int:
+        """Entries of ``x`` after the parameters (:meth:`loss_and_grad`): the training segments' start offsets."""
+        return len(self.train_index) * len(self.start_index) if self.free_starts else 0
 
     def jacobian(self, z: np.ndarray, mode: str = "ad", index=None, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
         """``(r, J)``: the residual vector [m] of shared ``z`` over segments ``index`` (default: training) and its
