@@ -66,7 +66,7 @@ def _initial(names, truth: dict, scale: float, log_space: np.ndarray) -> dict:
 def run_sysid_bench(args) -> dict:
     from ..envs import make_env
     from ..sysid import ShootingProblem, identify, synthetic_trajectories
-    from ..sysid.problem import POSITIVE_KINDS
+    from ..sysid.problem import is_positive
 
     overrides = {"object": args.object} if args.object else {}
     env = make_env(args.task, num_envs=1, raw=True, **overrides)
@@ -80,7 +80,7 @@ def run_sysid_bench(args) -> dict:
                                       position_noise=args.position_noise, angle_noise=args.angle_noise, **overrides)
         for count in counts:
             chosen = names[:count]
-            positive = np.array([n.rsplit("/", 1)[-1].rsplit("_", 1)[-1] in POSITIVE_KINDS for n in chosen])
+            positive = np.array([is_positive(n) for n in chosen])
             true = np.array([truth[n] for n in chosen])
             for scale in args.scales:
                 for method in args.methods:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_write
 from ..recording import RecordingFormatError, read_recording
 from ..recording.format import CONTROL_FIELDS
 
@@ -169,6 +170,4 @@ def save_npz(traj: Trajectories, path: str | os.PathLike, num_hand_dofs: int) ->
               "object_qd": traj.joint_qd[..., nu:], **traj.control, "dt": np.float64(traj.dt),
               "task": np.str_(json.dumps(traj.task)), "episode": traj.episode,
               **{f"params/{k}": v for k, v in traj.params.items()}}
-    from ..atomic import atomic_write
-
     atomic_write(path, lambda stream: np.savez(stream, **arrays))

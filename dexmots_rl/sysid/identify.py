@@ -63,7 +63,7 @@ def replay_error(problem: ShootingProblem, z, index) -> dict:
     with torch.no_grad():
         zt = torch.as_tensor(np.asarray(z, dtype=np.float64), dtype=problem.dtype).expand(len(index), -1)
         r = problem.residuals(zt, index)
-    physical = (r * problem._scales).numpy()
+    physical = (r * problem.scales).numpy()
     kinds = np.array(problem.kinds)
     unit = {"position": "position_m", "angle": "angle_rad", "quaternion": "quaternion"}
     out = {"rms": float(r.square().mean().sqrt())}

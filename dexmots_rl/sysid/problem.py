@@ -28,7 +28,8 @@ from ..envs import make_env
 from ..sim import Control
 from .data import CONTROL_FIELDS, Trajectories
 
-__all__ = ["Cost", "ParamSpace", "ShootingProblem", "POSITIVE_KINDS", "coordinate_kinds", "coordinate_scales"]
+__all__ = ["Cost", "ParamSpace", "ShootingProblem", "POSITIVE_KINDS", "coordinate_kinds", "coordinate_scales",
+           "is_positive"]
 
 POSITIVE_KINDS = ("damping", "friction", "stiffness", "mass")  # identified through their logarithm
 MAX_WORLDS = 2048  # worlds per simulator batch (a longer batch is split)
@@ -74,8 +75,10 @@ def coordinate_scales(kinds: list[str], position: float, angle: float) -> np.nda
     return np.array([{"position": position, "angle": angle, "quaternion": angle / 2}[k] for k in kinds])
 
 
-def _kind(name: str) -> str:
-    return name.rsplit("/", 1)[-1].rsplit("_", 1)[-1]
+def is_positive(name: str) -> bool:
+    """A parameter identified through its logarithm: its kind (``joint_damping``, ``<joint>/friction``...) is one
+    of :data:`POSITIVE_KINDS`."""
+    return name.rsplit("/", 1)[-1].rsplit("_", 1)[-1] in POSITIVE_KINDS
 
 
 @dataclasses.dataclass
@@ -89,7 +92,7 @@ class ParamSpace:
 
     @property
     def log(self) -> np.ndarray:
-        return np.array([_kind(n) in POSITIVE_KINDS for n in self.names])
+        return np.array([is_positive(n) for n in self.names])
 
     @classmethod
     def build(cls, names, initial: dict, bounds: dict) -> "ParamSpace":
@@ -97,7 +100,7 @@ class ParamSpace:
         x0 = np.array([float(initial[n]) for n in names])
         lo, hi = np.empty(len(names)), np.empty(len(names))
         for i, name in enumerate(names):
-            positive = _kind(name) in POSITIVE_KINDS
+            positive = is_positive(name)
             if positive and not x0[i] > 0:
                 raise ValueError(f"parameter {name!r} is positive and identified through its logarithm: its initial "
                                  f"guess must be > 0, got {x0[i]:g} (give init.{name}=<value>)")
@@ -175,7 +178,7 @@ class ShootingProblem:
         self.start_index = torch.as_tensor([i for i, k in enumerate(kinds) if k != "quaternion"], dtype=torch.long)
         self._start_scales = torch.as_tensor(coordinate_scales([kinds[i] for i in self.start_index], position_scale,
                                                                angle_scale), dtype=dtype)
-        self._scales = torch.as_tensor(coordinate_scales(self.kinds, position_scale, angle_scale), dtype=dtype)
+        self.scales = torch.as_tensor(coordinate_scales(self.kinds, position_scale, angle_scale), dtype=dtype)
         self._sims: dict[int, object] = {}
         self.cost = Cost()
 
@@ -250,7 +253,7 @@ class ShootingProblem:
             q, qd = out.joint_q, out.joint_qd
             preds.append(q[:, self.first:])
         self.cost.forward_steps += n * self.steps
-        return (torch.stack(preds, 1) - self.target[index]) / self._scales
+        return (torch.stack(preds, 1) - self.target[index]) / self.scales
 
     def loss(self, z: np.ndarray | torch.Tensor, index=None) -> float:
         """Mean squared residual (noise units) of the shared parameters ``z`` [P] over segments ``index``

@@ -84,7 +84,7 @@ def _plot_trajectories(result, problem, fig, count: int = 4) -> None:
     index = (problem.val_index if len(problem.val_index) else problem.train_index)[:count]
     z0 = problem.space.to_z(problem.space.initial)
     z1 = problem.space.to_z([result.values[n] for n in result.names])
-    scales = problem._scales.numpy()
+    scales = problem.scales.numpy()
     preds = []
     with torch.no_grad():
         for z in (z0, z1):
