@@ -100,6 +100,7 @@ def _plot_trajectories(result, problem, fig, count: int = 4) -> None:
         ax.plot(t, preds[0][k, :, coordinate], "--", label="initial guess")
         ax.plot(t, preds[1][k, :, coordinate], "-", label="identified")
         ax.set_xlabel("s")
+        ax.set_ylabel({"position": "m", "angle": "rad", "quaternion": "quaternion entry"}[problem.kinds[coordinate]])
         ax.set_title(f"segment {int(index[k])}, object coordinate {coordinate - first}", fontsize=8)
     fig.axes[0].legend(fontsize=7)
 
