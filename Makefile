@@ -1,6 +1,7 @@
 # Two commands on a fresh machine with Python 3.11 + pip:
 #   make run    set up .venv and run the main job
-#   make test   set up .venv and run the test suite
+#   make test   set up .venv and run the test suite's fast set (the `slow` marker left out)
+#   make test-all   the whole suite, as CI runs it (make test, then make test-slow)
 # Warp kernels compile once per scene and precision (docs/results.md, compile times) and are cached in
 # ~/.cache/warp (or $WARP_CACHE_PATH), which survives fresh clones on the same machine.
 
@@ -8,7 +9,7 @@ PYTHON ?= python3.11
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: setup run test bench clean
+.PHONY: setup run test test-slow test-all bench clean
 
 setup: $(VENV)/.installed
 
@@ -24,7 +25,12 @@ run: setup
 	$(VENV)/bin/dexmots-train
 
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow
+
+test-all: test test-slow
 
 bench: setup
 	$(VENV)/bin/dexmots-bench throughput --task screw_claw --json

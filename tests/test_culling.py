@@ -49,7 +49,7 @@ def _steps(task: str, monkeypatch, box: bool, steps: int = 3):
     return outs
 
 
-@pytest.mark.parametrize("task", ["repose_cube"])
+@pytest.mark.parametrize("task", [pytest.param("repose_cube", marks=pytest.mark.slow)])  # the cube in float64
 def test_box_specialisation_changes_no_force(task, monkeypatch):
     fast = _steps(task, monkeypatch, box=True)
     assert sum(float(o.contact_force.sum()) for o in fast) > 0.0  # the scene is in contact

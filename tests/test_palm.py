@@ -62,6 +62,7 @@ def test_palm_boxes_are_read_only_when_they_collide(scene):
     assert allegro.num_palm_boxes == 1 and len(allegro.object_point_pos) == 26
 
 
+@pytest.mark.slow  # the palm scene's own float64 build
 def test_cube_dropped_onto_the_palm_comes_to_rest(sim):
     q, qd = sim.initial_state()  # world 0: flat, 5 mm above the palm
     q[1, 3] += 0.02  # world 1: 2.5 cm above, tilted: lands on an edge and falls flat
@@ -85,6 +86,7 @@ def test_cube_dropped_onto_the_palm_comes_to_rest(sim):
     assert np.abs(rot.reshape(3, 3)[2]).max() > 1 - 1e-3  # a face is down (one cube axis vertical again)
 
 
+@pytest.mark.slow  # the palm scene's own float64 build
 def test_cube_beside_the_palm_falls_past_it(sim):
     q, qd = sim.initial_state()
     q[:, 1] = torch.tensor([0.06 + 0.0325 + 0.002, 0.3, -0.2])  # 2 mm clear of the palm's side, far
@@ -96,6 +98,7 @@ def test_cube_beside_the_palm_falls_past_it(sim):
     assert expected < -1.0
 
 
+@pytest.mark.slow  # the palm scene's own float64 build
 def test_palm_contact_gradients_match_finite_differences(sim, scene):
     """d(final height, velocity, orientation) / d(initial object velocity, external wrench) through a
     landing on the palm, H = 3 env steps (48 substeps), AD vs central differences."""
@@ -147,6 +150,7 @@ def test_palm_contact_gradients_match_finite_differences(sim, scene):
     assert (g_ad.abs() > 0).all()
 
 
+@pytest.mark.slow  # the palm scene's own float64 build
 def test_resting_height_agrees_with_mujoco(sim):
     m = mujoco.MjModel.from_xml_path(str(ASSET))
     d = mujoco.MjData(m)

@@ -104,6 +104,7 @@ def test_make_env_operate_obs_rgb():
     assert not torch.equal(td["pixels"][:, 0], td["next", "pixels"][:, -1])  # the random actions moved the fingers
 
 
+@pytest.mark.slow  # CUDA code generation of the mesh renderer
 def test_mesh_renderer_compiles_to_ptx_without_a_gpu():
     from dexmots_rl.sim.aot import compile_mesh_renderer
 

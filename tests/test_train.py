@@ -137,6 +137,7 @@ def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
     assert last.startswith("dexmots-train:") and field in last
 
 
+@pytest.mark.slow  # two fresh processes
 def test_torchrun_two_processes(tmp_path):
     torchrun = Path(sys.executable).parent / "torchrun"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
