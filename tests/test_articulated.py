@@ -59,6 +59,7 @@ def test_hand_and_object_step(name):
     assert pose.shape == (2, sim.nu + scene.tree.num_bodies, 7) and tips.shape == (2, 4, 3)
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_gradient_through_finger_contact_matches_finite_differences():
     """d(object and hand state after one step)/d(position targets), in float64 through finger-object contact
     and the table, against central differences."""

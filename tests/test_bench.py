@@ -22,6 +22,7 @@ def test_throughput_bench_reports_every_rate_in_contact():
     assert row["ratio_vs_mujoco"] == pytest.approx(row["fwd_steps_per_s"] / row["mujoco_steps_per_s"])
 
 
+@pytest.mark.slow  # the benchmark at full size
 def test_grad_bench_rows_agree_with_finite_differences():
     result = run(["grad", "--task", "screw_claw", "--horizons", "1", "4", "--draws", "2", "--num-entries", "4",
                   "--quiet"])
@@ -41,6 +42,7 @@ def test_grad_bench_rows_agree_with_finite_differences():
     assert "goal grad_growth_at_longest_horizon" in format_table(result)
 
 
+@pytest.mark.slow  # the tool scenes' float64 builds
 @pytest.mark.parametrize("task, object_name, free_base", [("spray_bottle", None, True), ("operate", "drawer_a", False)])
 def test_grad_bench_on_a_tool_task_agrees_through_contact(task, object_name, free_base):
     """The articulated scenes: from a squeezed pre-grasp (contact on every step) and from the hand extended

@@ -45,6 +45,7 @@ def test_a_failing_compile_names_the_kernel_and_the_compiler_message(monkeypatch
     assert printed["task"] == "screw_claw" and printed["ok"] is False
 
 
+@pytest.mark.slow  # two fresh processes
 def test_several_tasks_compile_side_by_side_into_one_result():
     result = bench.run(["compile", "--device", "cpu", "--task", "screw_claw", "screw_claw", "--jobs", "2", "--quiet"])
     assert result["ok"] and [t["task"] for t in result["tasks"]] == ["screw_claw", "screw_claw"]

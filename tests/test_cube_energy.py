@@ -25,6 +25,7 @@ def _energy_benchmark():
     return module
 
 
+@pytest.mark.slow  # 300 steps of 64 worlds, twice
 @pytest.mark.parametrize("seed", [0, 1])
 def test_striking_fingers_do_not_fling_the_cube(seed):
     result = _energy_benchmark().measure("repose_cube", worlds=64, steps=300, seed=seed, overrides={}, hold=3)

@@ -7,6 +7,7 @@ from dexmots_rl.envs import make_env
 from dexmots_rl.trajectories.joint_planner import optimize_joint_torques
 
 
+@pytest.mark.slow  # a plan through the simulator, then a task following it
 @pytest.mark.parametrize("name,joint,goal", [("drawer_a", "drawer", 0.03), ("spray_bottle_a", "trigger", 0.15)])
 def test_the_plan_tracks_the_ramp_and_a_task_follows_it(name, joint, goal):
     """A slide (fixed base) and a sprung hinge (free base, held): the planned force brings the joint to the goal

@@ -32,8 +32,8 @@ def _pressing(sim, name: str, fingers: str, curl: float = 0.4):
 
 # (object, fingers, spring stiffness, spring rest, steps, expected sign): the index pulls the spray bottle's
 # trigger up its hinge (free base), the curling fingers push the fixed drawer's handle in along its slide
-EQUILIBRIA = [("spray_bottle_a", "index", 0.5, 0.0, 20, 1.0),
-              pytest.param("drawer_a", "all", 500.0, 0.04, 40, -1.0, marks=pytest.mark.slow)]  # a fixed base in float64
+EQUILIBRIA = [pytest.param(*case, marks=pytest.mark.slow)  # the tool scenes' float64 builds
+              for case in (("spray_bottle_a", "index", 0.5, 0.0, 20, 1.0), ("drawer_a", "all", 500.0, 0.04, 40, -1.0))]
 
 
 @pytest.mark.parametrize("name, fingers, stiffness, rest, steps, sign", EQUILIBRIA)
@@ -65,6 +65,7 @@ def test_joint_wrench_balances_the_spring_at_rest(name, fingers, stiffness, rest
     torch.testing.assert_close(pushed, spring, rtol=0.02, atol=0.0)
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_joint_wrench_gradient_matches_finite_differences():
     """d(joint_wrench after one step)/d(position targets, start state), in float64 through the index finger's
     contact with the spray bottle's trigger, against central differences."""

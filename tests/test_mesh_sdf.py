@@ -127,6 +127,7 @@ def test_a_sphere_fits_in_the_scissors_ring():
     assert ring_mesh.bounding_box_oriented.contains([centre])[0]  # the box it collided as holds the hole
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_gradient_through_a_mesh_contact_matches_finite_differences():
     """A fingertip pressing down on the scissors' ring (a mesh geom): d(state after one step)/d(state), in
     float64, against central differences, over the finger's joints and the base's position."""

@@ -101,6 +101,7 @@ def test_worlds_step_their_own_variant_exactly():
                     assert torch.equal(mine, theirs[worlds])
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_gradient_with_two_variants_matches_finite_differences():
     """d(state after one step)/d(position targets) in float64, two worlds on two variants of one batch, through
     finger contact and the table, against central differences."""

@@ -227,6 +227,7 @@ def test_bad_pgdm_fields_name_the_field(tmp_path, override, field):
         train(_cfg(tmp_path, override))
 
 
+@pytest.mark.slow  # two training runs
 def test_a_resumed_run_trains_its_checkpoints_pgdm(tmp_path):
     run = tmp_path / "run"
     assert train(_cfg(tmp_path, "stop_after=1", "algo.target_offsets=[1,2]")) == {}

@@ -322,6 +322,7 @@ def _evaluate(actor, env, steps) -> float:
     return float(rollout["next", "reward"].sum(-2).mean())
 
 
+@pytest.mark.slow  # a training run
 def test_shac_training_raises_toy_env_return():
     torch.manual_seed(0)
     episode = 32

@@ -128,6 +128,7 @@ def _browser_check():
     return module
 
 
+@pytest.mark.slow  # a headless browser
 def test_headless_browser_draws_hand_and_object(recording, tmp_path):
     check = _browser_check()
     if check.find_chromium() is None:
@@ -195,6 +196,7 @@ def test_articulated_recording_carries_every_body(articulated_recording):
         viewer.stop()
 
 
+@pytest.mark.slow  # a headless browser
 def test_headless_browser_draws_palm_object_parts_and_table(articulated_recording, tmp_path):
     check = _browser_check()
     if check.find_chromium() is None:
