@@ -5,8 +5,8 @@ For each parameter count (the first ``k`` of ``--params``, default every paramet
 and initial scale: a recording of ``--worlds`` x ``--steps`` (:func:`~dexmots_rl.sysid.synthetic_trajectories`,
 measurement noise ``--position-noise`` / ``--angle-noise``) is identified by every method from the truth scaled
 by ``--scales`` (a positive parameter multiplied, a rest position shifted by ``(scale - 1) / 2`` rad or m). A method
-*reaches* the error when every parameter is within ``--tolerance`` of the truth (relative, with a floor of 0.1 on
-the truth's magnitude); reported: the simulated world-steps (forward; reverse ones apart) and the process CPU
+*reaches* the error when every parameter is within ``--tolerance`` of the truth (relative; a rest position's
+error against at least 0.1 rad or m, as its truth may be 0); reported: the simulated world-steps (forward; reverse ones apart) and the process CPU
 seconds spent until then, and the final errors.
 """
 
@@ -55,8 +55,9 @@ def _truth(args, scene_values: dict) -> dict:
     return truth
 
 
-def _errors(values: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    return np.abs(values - truth) / np.maximum(np.abs(truth), 0.1)
+def _errors(values: np.ndarray, truth: np.ndarray, positive: np.ndarray) -> np.ndarray:
+    """Relative errors; a rest position's against at least 0.1 (rad or m: its truth may be 0)."""
+    return np.abs(values - truth) / np.where(positive, np.abs(truth), np.maximum(np.abs(truth), 0.1))
 
 
 def _initial(names, truth: dict, scale: float, log_space: np.ndarray) -> dict:
@@ -90,10 +91,10 @@ def run_sysid_bench(args) -> dict:
                     result = identify(problem, method.partition("+")[0], iterations=args.iterations, seed=seed)
                     reached = None
                     for record in result.history:
-                        if _errors(problem.space.values_np(record["z"]), true).max() <= args.tolerance:
+                        if _errors(problem.space.values_np(record["z"]), true, positive).max() <= args.tolerance:
                             reached = record
                             break
-                    final = _errors(np.array([result.values[n] for n in chosen]), true)
+                    final = _errors(np.array([result.values[n] for n in chosen]), true, positive)
                     rows.append({"seed": seed, "count": count, "scale": scale, "method": method,
                                  "reached": reached is not None,
                                  "forward_steps": reached["forward_steps"] if reached else None,
