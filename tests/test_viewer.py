@@ -238,3 +238,40 @@ def test_the_printed_address_is_the_host_it_serves_on(recording):
         assert viewer.url == f"http://0.0.0.0:{viewer.port}/"
     finally:
         viewer.stop()
+
+
+def test_tool_task_arrows_are_scaled_to_its_forces_and_show_the_target(tmp_path):
+    """On a tool task (newtons, not the claw's tens of newtons) the arrows are scaled to the recording's
+    forces: none is drawn shorter than its head (a loose cone), and the planned force on the operated joint
+    is drawn (a torque about the lever's axis)."""
+    from dexmots_rl.recording.geometry import quat_to_mat
+    from dexmots_rl.recording.scene_messages import TYPICAL_ARROW_SHARE
+    from dexmots_rl.viz.viewer import ARROW_COLORS
+
+    env = make_env("door_handle", num_envs=2, differentiable=False, seed=0, max_episode_steps=6)
+    path = tmp_path / "door.mcap"
+    with EpisodeRecorder(path, env) as rec:
+        rec.record_rollout(env.rollout(6, None, tensordict=env.reset(), auto_reset=False, break_when_any_done=False))
+    recording = read_recording(path)
+    target = recording.frames["target_wrench"].double().numpy()
+    tree, j = env.base_env.sim.tree, env.base_env.sim.tree.joint_names.index(env.base_env.joint_name)
+    lever = recording.frames["body_pose"].double().numpy()[:, :, recording.geometry.num_hand_links + j + 1]
+    axis = np.stack([[quat_to_mat(q) @ tree.joint_axis[j] for q in frame] for frame in lever[..., 3:]])
+    assert np.abs(target).max() > 0 and np.allclose(target[..., :3], 0)
+    assert np.allclose(np.cross(target[..., 3:], axis), 0, atol=1e-9)  # about the lever's axis
+    viewer = ReplayViewer(path, port=0)
+    try:
+        style, (force_scale, torque_scale) = viewer._style, viewer._scales
+        forces = np.linalg.norm(recording.frames["object", "wrench"].double().numpy()[..., :3], axis=-1)
+        assert forces.max() > 0  # the fingers touch the lever
+        assert force_scale * np.percentile(forces[forces > 0], 75) == pytest.approx(
+            TYPICAL_ARROW_SHARE * style.max_length)  # a hinge's target is a torque: the forces are the measured
+        target_blue = ARROW_COLORS[3].astype(int)
+        drawn_targets = 0
+        for f in range(recording.num_frames):
+            points, colors = viewer._arrow_points(f, [0, 1], recording.world_offsets.double().numpy())
+            assert (np.linalg.norm(points[:, 1] - points[:, 0], axis=-1) > style.head_length).all()
+            drawn_targets += int((np.abs(colors - target_blue).sum(-1) <= 3).sum())
+        assert drawn_targets > 0
+    finally:
+        viewer.stop()

@@ -36,7 +36,7 @@ from tensordict import TensorDictBase
 from ..atomic import atomic_write
 from .format import (CONTROL_FIELDS, FORMAT_NAME, FORMAT_VERSION, ROOT_FRAME, SCENE_TOPIC, STEP_SCHEMA, STEP_TOPIC,
                      TF_TOPIC, WRENCH_TOPIC, body_frame, world_frame)
-from .geometry import scene_geometry
+from .geometry import quat_to_mat, scene_geometry
 from .scene_messages import arrow_style, arrows_update, protobuf_types, scene_update
 
 __all__ = ["EpisodeRecorder", "record_simulation", "grid_offsets", "FORCE_SCALE", "TORQUE_SCALE"]
@@ -208,10 +208,27 @@ class EpisodeRecorder:
             self._has_goal = False
             self._warn_once("a goal pose", exc)
         try:
-            target = self.base.reference(td, td.get(("task", "step")))["wrench"][:, 0].detach().cpu()
+            ref = self.base.reference(td, td.get(("task", "step")))
+            target = ref["wrench"][:, 0].detach().cpu()
+            if "joint_torque" in ref.keys() and hasattr(self.base, "joint_name"):  # an operated joint's plan
+                target = target + self._joint_target(ref["joint_torque"][:, 0].detach().cpu(), body_pose)
         except Exception as exc:
             self._warn_once("a target wrench", exc)
         return goal, target
+
+    def _joint_target(self, force: torch.Tensor, body_pose: np.ndarray) -> torch.Tensor:
+        """[N, 6]: the planned generalised force ``force`` [N, 1] on the task's operated joint as a world
+        vector along the joint's axis: a torque about a hinge's, a force along a slide's."""
+        from ..sim.object_model import SLIDE
+
+        tree = self.base.sim.tree
+        j = tree.joint_names.index(self.base.joint_name)
+        part_quat = body_pose[:, self.geometry.num_hand_links + j + 1, 3:]  # the part the joint moves
+        axis = np.stack([quat_to_mat(q) @ tree.joint_axis[j] for q in part_quat])
+        out = torch.zeros(len(axis), 6, dtype=torch.float64)
+        lane = slice(0, 3) if int(tree.joint_kind[j]) == SLIDE else slice(3, 6)
+        out[:, lane] = force.double().reshape(-1, 1) * torch.as_tensor(axis)
+        return out
 
     def _spacing(self, poses: np.ndarray) -> float:
         pts = self.geometry.world_points(poses)

@@ -3,7 +3,9 @@
 Arrows are sized by the scene: :func:`arrow_style` takes a length ``s`` (the object's half diagonal, at least a
 tenth of the hand's span) and gives shafts ``0.05 s`` thick, heads ``0.3 s`` long; an arrow starts where its
 direction leaves the object's bounding box (so it sticks out of the object, on any side) and is at most
-``2.5 s`` long. The viewer draws the same arrows from the same numbers.
+``2.5 s`` long. The viewer draws the same arrows from the same numbers, at lengths scaled to the forces of the
+recording (:func:`arrow_scales`: the upper quartile of its forces, measured and target, is an arrow ``s`` long,
+three heads; likewise its torques), and leaves out an arrow shorter than its head (it would show as a loose cone).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numpy as np
 from .format import world_frame
 from .geometry import GOAL_RGBA, STATIC, SceneGeometry, quat_to_mat
 
-__all__ = ["ArrowStyle", "arrow_style", "arrow_segments", "protobuf_types", "scene_update", "arrows_update",
+__all__ = ["ArrowStyle", "arrow_scales", "arrow_style", "arrow_segments", "protobuf_types", "scene_update", "arrows_update",
            "quat_from_to", "FORCE_RGBA", "TARGET_FORCE_RGBA", "TORQUE_RGBA", "TARGET_TORQUE_RGBA"]
 
 FORCE_RGBA, TARGET_FORCE_RGBA = (0.90, 0.20, 0.20, 1.0), (0.20, 0.80, 0.20, 0.8)
@@ -46,6 +48,22 @@ def arrow_style(geometry: SceneGeometry, body_pose: np.ndarray) -> ArrowStyle:
     span = float(np.linalg.norm(np.ptp(hand, 0))) if len(hand) else 0.0
     s = max(float(0.5 * np.linalg.norm(hi - lo)), 0.1 * span, 1e-3)
     return ArrowStyle(0.5 * (lo + hi), np.maximum(0.5 * (hi - lo), 1e-6), 0.05 * s, 0.12 * s, 0.3 * s, 2.5 * s)
+
+
+TYPICAL_ARROW_SHARE = 0.4  # of the longest arrow: the length of a recording's upper-quartile force (or torque)
+
+
+def arrow_scales(style: ArrowStyle, wrenches: np.ndarray, default: tuple[float, float]) -> tuple[float, float]:
+    """``(force_scale m/N, torque_scale m/(N m))`` for ``wrenches`` [..., 6] (every wrench a recording draws):
+    its upper-quartile force (torque) is ``TYPICAL_ARROW_SHARE`` of ``style.max_length``; ``default`` for a
+    recording whose forces (torques) are all zero."""
+    scales = []
+    for part, fallback in ((wrenches[..., :3], default[0]), (wrenches[..., 3:], default[1])):
+        norms = np.linalg.norm(part.reshape(-1, 3), axis=-1)
+        norms = norms[np.isfinite(norms) & (norms > 1e-9)]
+        typical = float(np.percentile(norms, 75)) if len(norms) else 0.0
+        scales.append(TYPICAL_ARROW_SHARE * style.max_length / typical if typical > 0 else fallback)
+    return scales[0], scales[1]
 
 
 def arrow_segments(style: ArrowStyle, base_pose: np.ndarray, vectors: np.ndarray) -> np.ndarray:

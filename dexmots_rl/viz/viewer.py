@@ -54,7 +54,7 @@ from ..recording.format import Recording, RecordingFormatError
 from ..recording.geometry import GOAL_RGBA, STATIC
 from ..recording.reader import read_recording
 from ..recording.recorder import FORCE_SCALE, TORQUE_SCALE
-from ..recording.scene_messages import arrow_segments, arrow_style
+from ..recording.scene_messages import arrow_scales, arrow_segments, arrow_style
 
 __all__ = ["PortInUseError", "check_port_free", "ReplayViewer", "main"]
 
@@ -218,6 +218,8 @@ class ReplayViewer:
             self._target = frames["target_wrench"].double().numpy()
             self._offsets = rec.world_offsets.double().numpy()
             self._style = arrow_style(rec.geometry, pose[0, 0])
+            self._scales = arrow_scales(self._style, np.concatenate([self._wrench, self._target]), (
+                float(rec.meta.get("force_scale", FORCE_SCALE)), float(rec.meta.get("torque_scale", TORQUE_SCALE))))
             if not same_scene:
                 self._build_scene(rec)
                 self._gui["goal"].value = rec.meta.get("goal", "true") == "true"  # no goal: no ghost
@@ -327,15 +329,15 @@ class ReplayViewer:
             self._gui["info"].content = self._readout(f, worlds)
 
     def _arrow_points(self, f: int, worlds: list[int], off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Start and end [K, 2, 3] and colours [K, 3] of the arrows longer than 0.1 mm."""
-        force_scale = float(self.rec.meta.get("force_scale", FORCE_SCALE))
-        torque_scale = float(self.rec.meta.get("torque_scale", TORQUE_SCALE))
+        """Start and end [K, 2, 3] and colours [K, 3] of the arrows longer than their heads (a shorter one would
+        show as a loose cone), at the recording's scales (:func:`.arrow_scales`)."""
+        force_scale, torque_scale = self._scales
         base = self.rec.geometry.num_hand_links
         pose = np.concatenate([self._pos[f, worlds, base] + off, self._quat[f, worlds, base]], -1)  # [M, 7]
         vecs = np.stack([self._wrench[f, worlds, :3] * force_scale, self._target[f, worlds, :3] * force_scale,
                          self._wrench[f, worlds, 3:] * torque_scale, self._target[f, worlds, 3:] * torque_scale], 1)
         pts = arrow_segments(self._style, pose[:, None], vecs).reshape(-1, 2, 3)
-        keep = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=-1) > 1e-4
+        keep = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=-1) > self._style.head_length
         return pts[keep].astype(np.float32), np.tile(ARROW_COLORS, (len(worlds), 1))[keep]
 
     def _readout(self, f: int, worlds: list[int]) -> str:
