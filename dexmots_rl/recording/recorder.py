@@ -219,7 +219,7 @@ class EpisodeRecorder:
     def _joint_target(self, force: torch.Tensor, body_pose: np.ndarray) -> torch.Tensor:
         """[N, 6]: the planned generalised force ``force`` [N, 1] on the task's operated joint as a world
         vector along the joint's axis: a torque about a hinge's, a force along a slide's."""
-        from ..sim.object_model import SLIDE
+        from ..sim import SLIDE
 
         tree = self.base.sim.tree
         j = tree.joint_names.index(self.base.joint_name)
