@@ -5,7 +5,7 @@ tenth of the hand's span) and gives shafts ``0.05 s`` thick, heads ``0.3 s`` lon
 direction leaves the object's bounding box (so it sticks out of the object, on any side) and is at most
 ``2.5 s`` long. The viewer draws the same arrows from the same numbers, at lengths scaled to the forces of the
 recording (:func:`arrow_scales`: the upper quartile of its forces, measured and target, is an arrow ``s`` long,
-three heads; likewise its torques), and leaves out an arrow shorter than its head (it would show as a loose cone).
+three heads, unless below a fingertip's push; likewise its torques), and leaves out an arrow shorter than its head (it would show as a loose cone).
 """
 
 from __future__ import annotations
@@ -51,17 +51,21 @@ def arrow_style(geometry: SceneGeometry, body_pose: np.ndarray) -> ArrowStyle:
 
 
 TYPICAL_ARROW_SHARE = 0.4  # of the longest arrow: the length of a recording's upper-quartile force (or torque)
+# a fingertip's push (1 N, 0.05 N m about a part 5 cm away): smaller forces are not enlarged to the typical
+# length, so a scene at rest (a joint's reaction of 0.1 N) shows no arrow rather than a long one
+TYPICAL_FLOOR = (1.0, 0.05)
 
 
 def arrow_scales(style: ArrowStyle, wrenches: np.ndarray, default: tuple[float, float]) -> tuple[float, float]:
     """``(force_scale m/N, torque_scale m/(N m))`` for ``wrenches`` [..., 6] (every wrench a recording draws):
-    its upper-quartile force (torque) is ``TYPICAL_ARROW_SHARE`` of ``style.max_length``; ``default`` for a
-    recording whose forces (torques) are all zero."""
+    its upper-quartile force (torque; at least :data:`TYPICAL_FLOOR`) is ``TYPICAL_ARROW_SHARE`` of
+    ``style.max_length``; ``default`` for a recording whose forces (torques) are all zero."""
     scales = []
-    for part, fallback in ((wrenches[..., :3], default[0]), (wrenches[..., 3:], default[1])):
+    for part, fallback, floor in ((wrenches[..., :3], default[0], TYPICAL_FLOOR[0]),
+                                  (wrenches[..., 3:], default[1], TYPICAL_FLOOR[1])):
         norms = np.linalg.norm(part.reshape(-1, 3), axis=-1)
         norms = norms[np.isfinite(norms) & (norms > 1e-9)]
-        typical = float(np.percentile(norms, 75)) if len(norms) else 0.0
+        typical = max(float(np.percentile(norms, 75)), floor) if len(norms) else 0.0
         scales.append(TYPICAL_ARROW_SHARE * style.max_length / typical if typical > 0 else fallback)
     return scales[0], scales[1]
 
