@@ -188,6 +188,7 @@ def test_bang_bang_fingers_inject_no_energy(name):
     assert (worst < release + 0.01).all(), (worst, release)
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_steps_in_flight_keep_their_own_intermediates():
     """Two chained steps differentiated at once (two pooled trajectories in flight, sharing adjoint buffers) give
     the gradient of the chain of single steps, and a gradient-free step in between changes nothing."""

@@ -226,7 +226,7 @@ def tool_sim():
     return make_simulator(_scene("spray_bottle_a"), num_worlds=3, dtype=torch.float64)
 
 
-@pytest.mark.parametrize("kind", ["claw", "tool"])
+@pytest.mark.parametrize("kind", ["claw", pytest.param("tool", marks=pytest.mark.slow)])  # the tool: float64 build
 def test_a_world_whose_gradient_is_not_finite_gets_zero_and_is_counted(kind, request):
     """An adjoint that overflows in one world (here: an infinite output gradient in world 1) gives that world a zero
     gradient, counted per world in ``nonfinite_gradient_steps`` and warned about; the other worlds' gradients are
