@@ -14,7 +14,7 @@ import torch
 import warp as wp
 
 from dexmots_rl.sim import Simulator, load_scene
-from dexmots_rl.sim.mjcf_shapes import SHAPE_SDF
+from dexmots_rl.sim.constants import GEOM_SDF
 
 EPS = 1e-6
 FREE_BOX = Path(__file__).parent / "assets" / "free_box.xml"
@@ -87,7 +87,7 @@ def _points_near_edges(planes: np.ndarray, count: int, smooth: float, rng) -> np
 
 
 def test_polytope_sdf_adjoint_matches_finite_differences(claw_scene):
-    assert claw_scene.object_shape != SHAPE_SDF and len(claw_scene.object_planes) > 4
+    assert claw_scene.object_shape != GEOM_SDF and len(claw_scene.object_planes) > 4
     sim = Simulator(claw_scene, num_worlds=1, dtype=torch.float64)
     ns, rng = sim.kernels, np.random.default_rng(0)
     pts = _points_near_edges(np.asarray(claw_scene.object_planes), 48, sim.contact.surface_smoothing, rng)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dexmots_rl.sim import Simulator, load_scene
-from dexmots_rl.sim.mjcf_shapes import SHAPE_SDF
+from dexmots_rl.sim.constants import GEOM_SDF
 
 ASSET = Path(__file__).parent / "assets" / "u_block.xml"
 
@@ -27,7 +27,7 @@ def _state(sim, finger_x, hinge=0.0):
 
 def test_non_convex_mesh_uses_an_sdf_grid(sim):
     scene = sim.scene
-    assert scene.object_shape == SHAPE_SDF
+    assert scene.object_shape == GEOM_SDF
     assert scene.object_sdf.ndim == 3 and min(scene.object_sdf.shape) > 8
     assert scene.object_sdf.min() < 0 < scene.object_sdf.max()
 

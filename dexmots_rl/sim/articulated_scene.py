@@ -12,7 +12,8 @@ import dataclasses
 
 import numpy as np
 
-from .hand_kernels import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, SDF_PAD
+from .constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE
+from .hand_kernels import SDF_PAD
 from .mesh_sdf import sdf_grid
 from .mjcf_shapes import AssetError, _quat_to_mat
 from .object_model import ObjectTree

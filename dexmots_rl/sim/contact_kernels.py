@@ -13,14 +13,11 @@ import types
 
 import warp as wp
 
+from .constants import CONTACT_CUTOFF, GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE, LSE_CUTOFF
 from .kernel_funcs import build_funcs
-from .mjcf_shapes import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SDF, SHAPE_SPHERE
 from .model import HINGE
 
-__all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "build_contact"]
-
-LSE_CUTOFF = 12.0  # smooth-max terms this many smoothing lengths below the max are dropped
-CONTACT_CUTOFF = 12.0  # skip a sample point when its penetration is below -CONTACT_CUTOFF / sharpness
+__all__ = ["build_contact"]
 
 
 def build_contact(t) -> types.SimpleNamespace:
@@ -30,12 +27,8 @@ def build_contact(t) -> types.SimpleNamespace:
     Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
     HINGE_OBJECT = t.hinge_object  # the object turns on a hinge (else it is a free body)
     BOX = t.box  # the convex object is an axis-aligned box (Model.obj_box_center / obj_box_half)
-    trilinear = build_funcs(dtype).trilinear
-
-    @wp.func
-    def softplus(x: dtype, beta: dtype):
-        bx = beta * x
-        return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+    funcs = build_funcs(dtype)
+    trilinear, softplus = funcs.trilinear, funcs.softplus
 
     @wp.func
     def unit_j(j: int):
@@ -176,11 +169,11 @@ def build_contact(t) -> types.SimpleNamespace:
     def object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
         """Signed distance (smoothed at edges) and outward unit normal (object frame), packed as
         (d, n). ``saved``/``row``/``slot``: where the caller saves the result for the reverse pass."""
-        if wp.static(shape == SHAPE_SPHERE):
+        if wp.static(shape == GEOM_SPHERE):
             d = wp.length(p)
             n = p / wp.max(d, dtype(1e-9))
             return vec4(d - m.shape_size[0], n[0], n[1], n[2])
-        if wp.static(shape == SHAPE_CYLINDER):
+        if wp.static(shape == GEOM_CYLINDER):
             rho = wp.sqrt(p[0] * p[0] + p[1] * p[1] + dtype(1e-12))
             s_r = rho - m.shape_size[0]
             s_z = wp.abs(p[2]) - m.shape_size[1]
@@ -189,7 +182,7 @@ def build_contact(t) -> types.SimpleNamespace:
             w_z = wp.exp((s_z - hi) / m.smooth)
             n = wp.normalize(w_r * vec3(p[0] / rho, p[1] / rho, dtype(0.0)) + w_z * vec3(dtype(0.0), dtype(0.0), wp.sign(p[2])))
             return vec4(hi + m.smooth * wp.log(w_r + w_z), n[0], n[1], n[2])
-        if wp.static(shape == SHAPE_SDF):
+        if wp.static(shape == GEOM_SDF):
             d, n = grid_sdf(m, p)
             return vec4(d, n[0], n[1], n[2])
         return polytope_sdf(m, p, saved, row, slot)
@@ -420,7 +413,7 @@ def build_contact(t) -> types.SimpleNamespace:
             reach = rad + dtype(CONTACT_CUTOFF) / m.beta
             p = x + R * m.point_pos[pi]
             if wp.length(p - xo) < m.obj_bound + reach:
-                if wp.static(shape == SHAPE_CONVEX):
+                if wp.static(shape == GEOM_CONVEX):
                     if polytope_max(m, wp.transpose(Ro) * (p - xo)) < reach:
                         return 1
                     return 0
@@ -441,7 +434,7 @@ def build_contact(t) -> types.SimpleNamespace:
         (most of them). A branch condition: empty adjoint."""
         reach = m.link_reach[i] + dtype(CONTACT_CUTOFF) / m.beta
         if wp.length(x - xo) < m.obj_bound + reach:
-            if wp.static(shape == SHAPE_CONVEX):
+            if wp.static(shape == GEOM_CONVEX):
                 if polytope_max(m, wp.transpose(Ro) * (x - xo)) < reach:
                     return 1
                 return 0

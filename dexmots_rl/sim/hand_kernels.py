@@ -22,15 +22,12 @@ import functools
 
 import warp as wp
 
+from .constants import (CONTACT_CUTOFF, GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF,
+                        GEOM_SPHERE, LIMIT_WIDTH)
 from .kernel_funcs import build_funcs
 
-__all__ = ["build_hand_kernels", "GEOM_NONE", "GEOM_BOX", "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF",
-           "SDF_PAD"]
+__all__ = ["build_hand_kernels", "SDF_PAD"]
 
-GEOM_NONE, GEOM_BOX, GEOM_SPHERE, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_SDF = -1, 0, 1, 2, 3, 4
-LIMIT_WIDTH = 0.02  # rad: the hand's range stops stiffen smoothly over this depth
-FRICTION_VELOCITY = 0.05  # rad/s: smoothing of the joints' Coulomb friction
-CONTACT_CUTOFF = 12.0  # a sphere farther than this many 1/sharpness outside a body feels nothing from it
 GEOM_SKIP_MARGIN = 1.0e-5  # m: a geom is skipped only when its bound lies this much beyond the nearest so far
 # m: a mesh's grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's largest is
 # 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is interpolated
@@ -106,6 +103,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     funcs = build_funcs(dtype)
     softplus, axis_angle, limit_ramp, box_distance = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
         funcs.box_distance
+    joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
     grid_distance = funcs.grid_distance
 
     @wp.func
@@ -125,17 +123,6 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         @wp.func
         def solve_jj(A: matJ, b: vecJ):
             return wp.inverse(A) * b
-
-    @wp.func
-    def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
-        rq = wp.quat_from_matrix(R)
-        out[w, b * 7 + 0] = x[0]
-        out[w, b * 7 + 1] = x[1]
-        out[w, b * 7 + 2] = x[2]
-        out[w, b * 7 + 3] = rq[3]
-        out[w, b * 7 + 4] = rq[0]
-        out[w, b * 7 + 5] = rq[1]
-        out[w, b * 7 + 6] = rq[2]
 
     @wp.func
     def geom_distance(kind: int, size: vec3, grid: wp.vec4i, values: wp.array(dtype=dtype), p: vec3):
@@ -385,7 +372,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             diag = diag + (m.armature[i] + dt * m.damping[i] + gain) * wp.outer(e, e)
             width = dtype(LIMIT_WIDTH)
             lim = m.limit_ke[i] * (limit_ramp(m.lower[i] - qk, width) - limit_ramp(qk - m.upper[i], width))
-            fric = m.friction[i] * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+            fric = joint_friction(m.friction[i], qdk)
             rhs = rhs + (tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[w, i]) * e
         rhs = rhs - bias
         qdd = solve_jj(M + diag, rhs)

@@ -1,7 +1,8 @@
 """Small warp functions the articulated-object kernels share, generic in the float type.
 
 :func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
-``axis_angle`` (a rotation matrix), ``limit_ramp`` / ``limit_slope`` (a range stop's C1 penalty and its slope),
+``axis_angle`` (a rotation matrix, with a hand-written adjoint), ``limit_ramp`` / ``limit_slope`` (a range stop's
+C1 penalty and its slope), ``joint_friction`` (smoothed Coulomb friction), ``write_pose`` (a body's pose as 7 floats),
 ``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
 interpolant and its gradient) and ``grid_distance`` (signed distance and normal from a mesh's grid,
 sim/mesh_sdf.py).
@@ -14,6 +15,8 @@ import types
 
 import warp as wp
 
+from .constants import FRICTION_VELOCITY
+
 __all__ = ["build_funcs"]
 
 
@@ -22,6 +25,7 @@ def build_funcs(float_type) -> types.SimpleNamespace:
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
 
     @wp.func
     def softplus(x: dtype, beta: dtype):
@@ -36,13 +40,25 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         s = wp.sin(t)
         return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
 
+    @wp.func_grad(axis_angle)
+    def adj_axis_angle(a: vec3, t: dtype, adj_ret: mat33):
+        # hand-written: warp's generated adjoint differentiates the identity, skew and outer matrices
+        # entry by entry; this is R = c I + s [a]x + (1 - c) a a^T contracted with adj_ret directly
+        c = wp.cos(t)
+        s = wp.sin(t)
+        G = adj_ret
+        v = vec3(G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1])  # <G, [u]x> = v . u
+        aGa = wp.dot(a, G * a)
+        wp.adjoint[t] += -s * (G[0, 0] + G[1, 1] + G[2, 2]) + c * wp.dot(v, a) + s * aGa
+        wp.adjoint[a] += s * v + (dtype(1.0) - c) * ((G + wp.transpose(G)) * a)
+
     @wp.func
     def limit_ramp(x: dtype, width: dtype):
         """A range stop's penalty depth: zero inside the range (x <= 0), quadratic over ``width``, then linear."""
         if x <= dtype(0.0):
             return dtype(0.0)
         if x < width:
-            return x * x / (dtype(2.0) * width)
+            return x * x * (dtype(0.5) / width)
         return x - dtype(0.5) * width
 
     @wp.func
@@ -51,8 +67,26 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         if x <= dtype(0.0):
             return dtype(0.0)
         if x < width:
-            return x / width
+            return x * (dtype(1.0) / width)
         return dtype(1.0)
+
+    @wp.func
+    def joint_friction(friction: dtype, speed: dtype):
+        """A joint's Coulomb friction (N m or N) at ``speed``, smoothed over FRICTION_VELOCITY (opposes it when
+        subtracted)."""
+        return friction * wp.tanh(speed / dtype(FRICTION_VELOCITY))
+
+    @wp.func
+    def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
+        """Body b's pose into row w of ``out``: position, then the (w, x, y, z) quaternion of R, 7 columns."""
+        rq = wp.quat_from_matrix(R)
+        out[w, b * 7 + 0] = x[0]
+        out[w, b * 7 + 1] = x[1]
+        out[w, b * 7 + 2] = x[2]
+        out[w, b * 7 + 3] = rq[3]
+        out[w, b * 7 + 4] = rq[0]
+        out[w, b * 7 + 5] = rq[1]
+        out[w, b * 7 + 6] = rq[2]
 
     @wp.func
     def box_distance(h: vec3, p: vec3):
@@ -138,5 +172,5 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         return vec4(d, n[0], n[1], n[2])
 
     return types.SimpleNamespace(softplus=softplus, axis_angle=axis_angle, limit_ramp=limit_ramp,
-                                 limit_slope=limit_slope, box_distance=box_distance, trilinear=trilinear,
-                                 grid_distance=grid_distance)
+                                 limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
+                                 box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)

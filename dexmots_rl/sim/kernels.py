@@ -26,6 +26,8 @@ import warp as wp
 from .chain_kernels import build_chain
 from .contact_kernels import build_contact
 from .palm_kernels import build_palm
+from .constants import LIMIT_WIDTH
+from .kernel_funcs import build_funcs
 from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
 __all__ = ["build_kernels"]
@@ -37,10 +39,6 @@ OPT_LEVEL = int(os.environ.get("DEXMOTS_WARP_OPT", "2"))
 # CUDA builds only: warp 1.19 does not pass fast_math to its CPU compiler (a CPU run with it set measured the
 # same within noise)
 FAST_MATH = os.environ.get("DEXMOTS_WARP_FAST_MATH", "0") == "1"
-LIMIT_WIDTH = 0.02  # rad (or m): joint-limit springs stiffen smoothly over this depth
-LIMIT_CURVE = 0.5 / LIMIT_WIDTH  # warp folds constant expressions in float32, so precompute them
-LIMIT_OFFSET = 0.5 * LIMIT_WIDTH
-FRICTION_VELOCITY = 0.05  # rad/s (or m/s), smoothing of joint Coulomb friction
 # columns of the packed per-world parameter array, by name (model.OBJECT_PARAMS)
 P_DAMPING, P_FRICTION, P_STIFFNESS, P_REST = (OBJECT_PARAMS.index(n) for n in
                                               ("joint_damping", "joint_friction", "joint_stiffness", "joint_rest"))
@@ -199,41 +197,9 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             box_face_max=contact.box_face_max))
     palm_wrench = palm.palm_wrench if PALM else None
 
-    @wp.func
-    def limit_ramp(x: dtype):
-        # C1 penalty ramp: zero inside the limit, quadratic over LIMIT_WIDTH, then linear
-        if x <= dtype(0.0):
-            return dtype(0.0)
-        if x < dtype(LIMIT_WIDTH):
-            return x * x * dtype(LIMIT_CURVE)
-        return x - dtype(LIMIT_OFFSET)
-
-    @wp.func
-    def limit_slope(x: dtype):
-        # d limit_ramp / dx
-        if x <= dtype(0.0):
-            return dtype(0.0)
-        if x < dtype(LIMIT_WIDTH):
-            return x * dtype(2.0 * LIMIT_CURVE)
-        return dtype(1.0)
-
-    @wp.func
-    def axis_angle(a: vec3, t: dtype):
-        c = wp.cos(t)
-        s = wp.sin(t)
-        return c * wp.identity(n=3, dtype=dtype) + s * wp.skew(a) + (dtype(1.0) - c) * wp.outer(a, a)
-
-    @wp.func_grad(axis_angle)
-    def adj_axis_angle(a: vec3, t: dtype, adj_ret: mat33):
-        # hand-written: warp's generated adjoint differentiates the identity, skew and outer matrices
-        # entry by entry; this is R = c I + s [a]x + (1 - c) a a^T contracted with adj_ret directly
-        c = wp.cos(t)
-        s = wp.sin(t)
-        G = adj_ret
-        v = vec3(G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1])  # <G, [u]x> = v . u
-        aGa = wp.dot(a, G * a)
-        wp.adjoint[t] += -s * (G[0, 0] + G[1, 1] + G[2, 2]) + c * wp.dot(v, a) + s * aGa
-        wp.adjoint[a] += s * v + (dtype(1.0) - c) * ((G + wp.transpose(G)) * a)
+    funcs = build_funcs(dtype)
+    axis_angle, limit_ramp, limit_slope = funcs.axis_angle, funcs.limit_ramp, funcs.limit_slope
+    joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
 
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
@@ -362,10 +328,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 drive = effort * sat
                 gain = gain * (dtype(1.0) - sat * sat)
             diag[k, k] = fixed(m.armature, i) + dt * fixed(m.damping, i) + gain
+            width = dtype(LIMIT_WIDTH)
             lim = fixed(m.limit_ke, i) * (
-                limit_ramp(fixed(m.lower, i) - qk) - limit_ramp(qk - fixed(m.upper, i))
+                limit_ramp(fixed(m.lower, i) - qk, width) - limit_ramp(qk - fixed(m.upper, i), width)
             )
-            fric = fixed(m.friction, i) * wp.tanh(qdk / dtype(FRICTION_VELOCITY))
+            fric = joint_friction(fixed(m.friction, i), qdk)
             rhs[k] = tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[k] - bias[k]
         if wp.static(J == 1):
             qdd = vecJ(rhs[0] / (M[0, 0] + diag[0, 0]))
@@ -462,7 +429,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             th = q[r, o]
             th_d = qd[r, o]
             torque = wp.dot(a, t_obj + ext_t + wp.cross(Ro * m.obj_com, m.obj_mass * m.gravity))
-            torque = torque - damp * th_d - params[w, P_FRICTION] * wp.tanh(th_d / dtype(FRICTION_VELOCITY))
+            torque = torque - damp * th_d - joint_friction(params[w, P_FRICTION], th_d)
             # the spring is integrated implicitly like the damping (stable at any stiffness)
             torque = torque - spring * (th + dt * th_d - params[w, P_REST])
             stiff = spring
@@ -470,8 +437,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 # the range's limit spring, linearised at the predicted angle like the joint spring: implicit,
                 # so it can be stiff enough that a finger cannot push the part through its stop
                 th_p = th + dt * th_d
-                torque = torque + m.obj_limit_ke * (limit_ramp(m.obj_lower - th_p) - limit_ramp(th_p - m.obj_upper))
-                stiff = stiff + m.obj_limit_ke * (limit_slope(m.obj_lower - th_p) + limit_slope(th_p - m.obj_upper))
+                width = dtype(LIMIT_WIDTH)
+                torque = torque + m.obj_limit_ke * (limit_ramp(m.obj_lower - th_p, width)
+                                                    - limit_ramp(th_p - m.obj_upper, width))
+                stiff = stiff + m.obj_limit_ke * (limit_slope(m.obj_lower - th_p, width)
+                                                  + limit_slope(th_p - m.obj_upper, width))
             v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp + dt * dt * stiff)
             qd[ro, o] = v_new
             q[ro, o] = q[r, o] + dt * v_new
@@ -495,17 +465,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             wrench[ro, c] = wrench[r, c] + inv_substeps * hand_f[c]
             wrench[ro, 3 + c] = wrench[r, 3 + c] + inv_substeps * hand_t[c]
         cforce[ro] = cforce[r] + inv_substeps * c_sum
-
-    @wp.func
-    def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
-        rq = wp.quat_from_matrix(R)
-        out[w, b * 7 + 0] = x[0]
-        out[w, b * 7 + 1] = x[1]
-        out[w, b * 7 + 2] = x[2]
-        out[w, b * 7 + 3] = rq[3]
-        out[w, b * 7 + 4] = rq[0]
-        out[w, b * 7 + 5] = rq[1]
-        out[w, b * 7 + 6] = rq[2]
 
     @wp.kernel(module="unique", module_options=module_options)
     def observe(

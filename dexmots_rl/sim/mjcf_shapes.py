@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["AssetError", "SHAPE_CONVEX", "SHAPE_SPHERE", "SHAPE_CYLINDER", "SHAPE_SDF", "MAX_PLANES"]
+from .constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE
 
-SHAPE_CONVEX, SHAPE_SPHERE, SHAPE_CYLINDER, SHAPE_SDF = 0, 1, 2, 3
+__all__ = ["AssetError", "MAX_PLANES"]
+
 MAX_PALM_BOXES = 4  # colliding box geoms on body "hand" (palm contact, free objects only)
 MAX_OBJECT_POINTS = 32  # object surface samples for palm contact
 CYLINDER_RIM_POINTS = 8  # samples per cap rim of a cylinder object (palm contact)
@@ -79,11 +80,11 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]
     none = np.zeros((0, 4))
     no_sdf = (np.zeros((1, 1, 1)), np.zeros(3), 1.0)
     if gtype == int(mujoco.mjtGeom.mjGEOM_SPHERE):
-        return SHAPE_SPHERE, none, np.array([size[0], 0.0]), float(size[0] + np.linalg.norm(pos)), no_sdf
+        return GEOM_SPHERE, none, np.array([size[0], 0.0]), float(size[0] + np.linalg.norm(pos)), no_sdf
     if gtype == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
         if np.abs(pos).max() > 1e-9 or np.abs(rot - np.eye(3)).max() > 1e-9:
             raise AssetError("object cylinder geom must sit at the object body frame")
-        return SHAPE_CYLINDER, none, np.array([size[0], size[1]]), float(np.hypot(size[0], size[1])), no_sdf
+        return GEOM_CYLINDER, none, np.array([size[0], size[1]]), float(np.hypot(size[0], size[1])), no_sdf
     mesh = None
     if gtype == int(mujoco.mjtGeom.mjGEOM_BOX):
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
@@ -108,10 +109,10 @@ def _object_shape(m, b: int) -> tuple[int, np.ndarray, np.ndarray, float, tuple]
     bound = float(np.linalg.norm(corners, axis=1).max())
     convex = mesh is None or (mesh.is_watertight and abs(mesh.volume - hull.volume) <= 1e-3 * hull.volume)
     if convex and len(planes) <= MAX_PLANES:
-        return SHAPE_CONVEX, planes, np.zeros(2), bound, no_sdf
+        return GEOM_CONVEX, planes, np.zeros(2), bound, no_sdf
     if not mesh.is_watertight:
         raise AssetError("object mesh is neither convex (<= 32 faces) nor watertight; cannot build its SDF")
-    return SHAPE_SDF, none, np.zeros(2), bound, _sdf_grid(mesh, pad=0.25 * float(np.ptp(mesh.bounds, 0).max()))
+    return GEOM_SDF, none, np.zeros(2), bound, _sdf_grid(mesh, pad=0.25 * float(np.ptp(mesh.bounds, 0).max()))
 
 
 def _palm_boxes(m, d, hand: int, obj_geom: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

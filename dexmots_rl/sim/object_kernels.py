@@ -24,13 +24,11 @@ import functools
 
 import warp as wp
 
+from .constants import CONTACT_CUTOFF
 from .contact_sum_kernels import build_sum_contacts
 from .kernel_funcs import build_funcs
 
-__all__ = ["build_object_kernels", "LIMIT_WIDTH", "JOINT_FRICTION_VELOCITY"]
-
-LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly over this depth, or 5 % of a shorter range
-JOINT_FRICTION_VELOCITY = 0.05  # rad/s (or m/s): smoothing of the joints' Coulomb friction
+__all__ = ["build_object_kernels"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,6 +98,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     funcs = build_funcs(dtype)
     softplus, axis_angle, limit_ramp, limit_slope = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
         funcs.limit_slope
+    joint_friction = funcs.joint_friction
 
     @wp.func
     def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int, v: int):
@@ -276,7 +275,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             qp = qj[k] + dt * qdj[k]
             lo = m.jlower[v, k] - qp
             hi = qp - m.jupper[v, k]
-            force = -damp * qdj[k] - fric * wp.tanh(qdj[k] / dtype(JOINT_FRICTION_VELOCITY)) - spring * (qp - rest)
+            force = -damp * qdj[k] - joint_friction(fric, qdj[k]) - spring * (qp - rest)
             width = m.limit_width[v, k]
             force = force + m.limit_ke[v, k] * (limit_ramp(lo, width) - limit_ramp(hi, width))
             stiff = spring + m.limit_ke[v, k] * (limit_slope(lo, width) + limit_slope(hi, width))
@@ -418,7 +417,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             if rad >= dtype(0.0):
                 ps = x + R * m.sample_pos[v, b, s]
                 pen = table_z + rad - ps[2]
-                if pen > dtype(-12.0) / m.beta:
+                if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                     r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
                     vp = vc + wp.cross(om, r)
                     fe = m.ke * softplus(pen, m.beta)

@@ -28,7 +28,8 @@ import warp as wp
 from tensordict import TensorDict
 
 from .mjcf_shapes import AssetError
-from .object_kernels import LIMIT_WIDTH, build_object_kernels
+from .constants import LIMIT_WIDTH
+from .object_kernels import build_object_kernels
 from .object_model import MAX_SAMPLES, ObjectTree, object_tree
 from .hand_sim import check_device
 

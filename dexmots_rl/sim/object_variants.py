@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .articulated_scene import ArticulatedScene, ObjectGeoms
-from .hand_kernels import GEOM_NONE
+from .constants import GEOM_NONE
 from .mjcf_shapes import AssetError
 from .object_model import ObjectTree
 

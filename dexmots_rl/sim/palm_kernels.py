@@ -24,7 +24,8 @@ import types
 
 import warp as wp
 
-from .contact_kernels import CONTACT_CUTOFF
+from .constants import CONTACT_CUTOFF
+from .kernel_funcs import build_funcs
 
 __all__ = ["build_palm"]
 
@@ -37,6 +38,7 @@ def build_palm(t) -> types.SimpleNamespace:
     NB, NS = t.NB, t.NS
     fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
     smooth_box, box_face_max = t.smooth_box, t.box_face_max
+    box_distance = build_funcs(dtype).box_distance
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
@@ -90,12 +92,8 @@ def build_palm(t) -> types.SimpleNamespace:
     def palm_near(m: Model, b: int, xo: vec3):
         """1 when the object's bounding sphere is within the contact band of palm box b, else 0 (a branch
         condition: empty adjoint)."""
-        R = m.palm_rot[b]
-        h = m.palm_half[b]
-        q = wp.transpose(R) * (xo - m.palm_pos[b])
-        out = vec3(wp.max(wp.abs(q[0]) - h[0], dtype(0.0)), wp.max(wp.abs(q[1]) - h[1], dtype(0.0)),
-                   wp.max(wp.abs(q[2]) - h[2], dtype(0.0)))
-        if wp.length(out) < m.obj_bound + dtype(CONTACT_CUTOFF) / m.palm_beta + m.palm_smooth:
+        q = wp.transpose(m.palm_rot[b]) * (xo - m.palm_pos[b])
+        if box_distance(m.palm_half[b], q)[0] < m.obj_bound + dtype(CONTACT_CUTOFF) / m.palm_beta + m.palm_smooth:
             return 1
         return 0
 

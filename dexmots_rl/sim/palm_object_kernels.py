@@ -15,6 +15,7 @@ import functools
 
 import warp as wp
 
+from .constants import CONTACT_CUTOFF
 from .kernel_funcs import build_funcs
 
 __all__ = ["build_palm_object_kernels"]
@@ -97,7 +98,7 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
                     dn = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))
                     nl = vec3(dn[1], dn[2], dn[3])
                     pen = rad - dn[0]
-                    if pen > dtype(-12.0) / m.beta:
+                    if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                         n = Rb * nl  # world, out of the palm: the push on the object
                         r = ps - n * rad - c
                         vp = vc + wp.cross(om, r)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .mjcf_shapes import SHAPE_CONVEX, SHAPE_CYLINDER, SHAPE_SPHERE
+from .constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
 
 __all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
            "background_kernel", "render_kernel"]
@@ -214,11 +214,11 @@ def hit_sdf(sc: RenderScene, ro: wp.vec3, rd: wp.vec3, t_in: float, t_out: float
 def hit_object(sc: RenderScene, ro: wp.vec3, rd: wp.vec3, t_in: float, t_out: float) -> wp.vec4:
     """Ray (object frame) against the object: (distance or -1, local normal). One function per shape,
     so a pixel only pays for the locals of the shape it tests."""
-    if sc.shape == SHAPE_CONVEX:
+    if sc.shape == GEOM_CONVEX:
         return hit_convex(sc, ro, rd)
-    if sc.shape == SHAPE_SPHERE:
+    if sc.shape == GEOM_SPHERE:
         return hit_sphere(sc, ro, rd)
-    if sc.shape == SHAPE_CYLINDER:
+    if sc.shape == GEOM_CYLINDER:
         return hit_cylinder(sc, ro, rd)
     return hit_sdf(sc, ro, rd, t_in, t_out)
 

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from .constants import GEOM_CONVEX
 from .kernels import build_kernels
 from .mjcf_shapes import MAX_PLANES
 from .energy import scene_object_energy
@@ -83,7 +84,7 @@ class Simulator(HandSimulator):
         contact: ContactParams | None = None,
         adjoint_clip: float | None = None,
     ):
-        if scene.object_shape == 0 and len(scene.object_planes) > MAX_PLANES:
+        if scene.object_shape == GEOM_CONVEX and len(scene.object_planes) > MAX_PLANES:
             raise ValueError(f"object has {len(scene.object_planes)} faces; at most {MAX_PLANES} are supported")
         super().__init__(scene, num_worlds, device=device, dtype=dtype, substeps=substeps, dt=dt, contact=contact,
                          adjoint_clip=adjoint_clip)
@@ -96,7 +97,7 @@ class Simulator(HandSimulator):
         self.num_bodies = scene.num_hand_dofs + 1
         # (centre, half extents) in m, object frame, of a convex object that is an axis-aligned box (the kernels'
         # box_object; tasks read it too, e.g. how far a turned cube reaches below its centre), else None
-        self.object_box = _box_of_planes(scene.object_planes) if scene.object_shape == 0 else None
+        self.object_box = _box_of_planes(scene.object_planes) if scene.object_shape == GEOM_CONVEX else None
         self.kernels = build_kernels(
             _wp_dtype(dtype),
             scene.num_fingers,
