@@ -38,6 +38,17 @@ __all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", 
 LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
 
 
+def _inverse_masses(trees) -> tuple[np.ndarray, np.ndarray]:
+    """[V, B] inverse masses and [V, B, 3, 3] inverse inertias (body frame) of every variant's bodies, as free
+    bodies (what the contact law's implicit damping reads); zero for a fixed base, which does not move."""
+    inv_mass = np.stack([np.where(t.mass > 0, 1.0 / np.maximum(t.mass, 1e-12), 0.0) for t in trees])
+    inv_inertia = np.stack([np.linalg.pinv(t.inertia) for t in trees])  # a massless body: zero
+    for v, tree in enumerate(trees):
+        if not tree.free:
+            inv_mass[v, 0], inv_inertia[v, 0] = 0.0, 0.0
+    return inv_mass, inv_inertia
+
+
 class ArticulatedStepOutput(StepOutput):
     """:class:`~dexmots_rl.sim.StepOutput` of an articulated object, plus ``joint_wrench`` [N, P]: the mean over
     substeps of the fingers' generalised contact force on each of the object's part joints (the order of
@@ -165,6 +176,7 @@ class ArticulatedSimulator(HandSimulator):
         m.geom_grid = wp.array(grid.astype(np.int32), dtype=wp.vec4i, device=self.device)
         m.sdf_values = arr(np.concatenate([g.sdf_values for g in variants]), wdt)
         m.body_bound = arr(np.stack([g.bound() for g in variants]), wdt)
+        m.body_inv_mass, m.body_inv_inertia = (arr(x, t) for x, t in zip(_inverse_masses(self.variants), (wdt, k.mat33)))
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
         m.mu, m.v_slip = wdt(c.friction), wdt(c.slip_velocity)

@@ -147,7 +147,7 @@ class ArticulatedTrajectory:
                     tb = with_palm
                 out.append((h.finger_contact, (dim, num_links),
                             [hand_model, variant, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
-                             only_touching, points_per_link]))
+                             only_touching, points_per_link, dt]))
                 out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
                                                   rows(wrench, s), rows(normal, s), rows(joint_wrench, s),
                                                   step_normal, weight, *tot, rows(wrench, s + 1),

@@ -29,6 +29,7 @@ def build_contact(t) -> types.SimpleNamespace:
     BOX = t.box  # the convex object is an axis-aligned box (Model.obj_box_center / obj_box_half)
     funcs = build_funcs(dtype)
     trilinear, softplus = funcs.trilinear, funcs.softplus
+    normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
 
     @wp.func
     def unit_j(j: int):
@@ -228,10 +229,8 @@ def build_contact(t) -> types.SimpleNamespace:
 
     @wp.func
     def object_mobility(m: Model, Ro: mat33, r: vec3, n: vec3):
-        """The free object's inverse effective mass (1/kg) along n at r from its origin (world frame):
-        1/m + (r x n)^T I^-1 (r x n) (its origin is its com)."""
-        u = wp.transpose(Ro) * wp.cross(r, n)  # object frame
-        return dtype(1.0) / m.obj_mass + wp.dot(u, m.obj_inv_inertia * u)
+        """The free object's inverse effective mass (1/kg) along n at r from its origin (its com), world frame."""
+        return body_mobility(dtype(1.0) / m.obj_mass, m.obj_inv_inertia, Ro, r, n)
 
     @wp.func
     def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
@@ -254,18 +253,15 @@ def build_contact(t) -> types.SimpleNamespace:
             vn = wp.dot(v_rel, n)
             sp = softplus(phi, m.beta)
             spring = m.ke * sp
-            # the normal damping (kd x spring) integrated implicitly along the normal against the object's
-            # mobility w there (the finger is far heavier): kd / (1 + dt kd spring w), so one substep never
-            # reverses the normal velocity. Explicit, it reverses and grows it once dt kd spring w passes 2, or
-            # less beside the contacts' stiffness (a light object pressed hard), and contact makes energy.
-            # A free object only: the hinged knob, far less mobile, makes none with the explicit law
-            kd = m.kd
+            # the normal damping integrated implicitly against the object's mobility there (the finger is far
+            # heavier; kernel_funcs.normal_force). A free object only: the hinged knob, far less mobile, makes
+            # no energy with the explicit law
+            mobility = dtype(0.0)
             if wp.static(not HINGE_OBJECT):
-                if dt > dtype(0.0):
-                    kd = kd / (dtype(1.0) + dt * m.kd * spring * object_mobility(m, Ro, cp - xo, n))
-            fn = spring * wp.max(dtype(1.0) - kd * vn, dtype(0.0))
+                mobility = object_mobility(m, Ro, cp - xo, n)
+            fn = normal_force(spring, vn, m.kd, dt, mobility)
             vt = v_rel - vn * n
-            den = wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
+            den = slip_norm(vt, m.v_slip)
             ft = -m.mu * fn / den * vt
             fc = fn * n + ft
             gen = Jv * fc

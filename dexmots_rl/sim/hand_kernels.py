@@ -93,6 +93,10 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         geom_grid: wp.array3d(dtype=wp.vec4i)  # [V, B, G] sdf: (first index in sdf_values, points along x, y, z)
         sdf_values: wp.array(dtype=dtype)  # every variant's sdf grids (m, negative inside), x-major, one after another
         body_bound: wp.array2d(dtype=dtype)  # [V, B] m: a sphere about the body origin holding its geoms (with margin)
+        # [V, B] each object body's inverse mass (1/kg) and inverse inertia about its com (body frame): the contact
+        # law's damping is implicit against the body's mobility (zero: a fixed base)
+        body_inv_mass: wp.array2d(dtype=dtype)
+        body_inv_inertia: wp.array2d(dtype=mat33)
         gravity: vec3
         ke: dtype  # N/m: contact stiffness
         kd: dtype  # s/m: Hunt-Crossley damping
@@ -104,6 +108,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     softplus, axis_angle, limit_ramp, box_distance = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
         funcs.box_distance
     joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
+    normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
     grid_distance = funcs.grid_distance
 
     @wp.func
@@ -217,6 +222,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         # contributed nothing, so its adjoint is zero)
         points_per_link: int,  # P, a launch argument so the loop over a link's spheres stays a loop (unrolled, the
         # kernel's body would be copied P times)
+        dt: dtype,  # s: the substep (the law's damping is implicit over it)
     ):
         w, link = wp.tid()  # link: f * J + k
         if only_touching != 0:  # the adjoint launch: a link none of whose spheres touched has a zero adjoint
@@ -284,16 +290,19 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
                             touching[w, s] = 1
                             n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
                             cp = p - n * rad
-                            v_body = body_v[w, b] + wp.cross(body_w[w, b], cp - body_c[w, b])
-                            v_rel = vp - v_body
+                            r = cp - body_c[w, b]
+                            v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
                             vn = wp.dot(v_rel, n)
-                            fn = m.ke * softplus(pen, m.beta) * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+                            # the one contact law (kernel_funcs.normal_force): its damping implicit against the
+                            # body's mobility at the contact (the finger is far heavier)
+                            mobility = body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb, r, n)
+                            fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
                             vt = v_rel - vn * n
-                            ft = -m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip) * vt
+                            ft = -m.mu * fn / slip_norm(vt, m.v_slip) * vt
                             fc = fn * n + ft  # on the finger
                             gen_f = gen_f + wp.transpose(Jp) * fc
                             wp.atomic_add(contact_f, w, b, -fc)
-                            wp.atomic_add(contact_t, w, b, wp.cross(cp - body_c[w, b], -fc))
+                            wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
                             wp.atomic_add(normal_sum, w, fn)
                 for k in range(J):
                     if k <= k_link:

@@ -1,6 +1,8 @@
 """Small warp functions the articulated-object kernels share, generic in the float type.
 
 :func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
+``normal_force`` / ``slip_norm`` / ``body_mobility`` (the one contact law's normal force with its implicit
+damping, its friction's smoothing, and the mobility the damping is integrated against),
 ``axis_angle`` (a rotation matrix, with a hand-written adjoint), ``limit_ramp`` / ``limit_slope`` (a range stop's
 C1 penalty and its slope), ``joint_friction`` (smoothed Coulomb friction), ``write_pose`` (a body's pose as 7 floats),
 ``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
@@ -32,6 +34,57 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         """log(1 + exp(beta x)) / beta, computed without overflow."""
         bx = beta * x
         return (wp.max(bx, dtype(0.0)) + wp.log(dtype(1.0) + wp.exp(-wp.abs(bx)))) / beta
+
+    @wp.func
+    def normal_force(spring: dtype, vn: dtype, kd: dtype, dt: dtype, mobility: dtype):
+        """The contact law's normal force (N): the penalty ``spring`` (ke softplus(penetration)) with Hunt-Crossley
+        damping, ``spring max(1 - kd' vn, 0)`` at normal velocity ``vn`` (m/s, positive separating). Against a
+        body of ``mobility`` w (1/kg: its inverse effective mass along the normal at the contact point) the
+        damping kd x spring is integrated implicitly, kd' = kd / (1 + dt kd spring w), so one substep never
+        reverses the normal velocity: explicit, it reverses and grows it once dt kd spring w passes 2 (a light
+        body pressed hard), and contact makes energy. w = 0: a body that does not move, or one whose solve takes
+        the damping into its matrix (the table's and the palm's, object_kernels / palm_object_kernels)."""
+        damping = kd
+        if dt * mobility > dtype(0.0):
+            damping = kd / (dtype(1.0) + dt * kd * spring * mobility)
+        return spring * wp.max(dtype(1.0) - damping * vn, dtype(0.0))
+
+    @wp.func
+    def slip_norm(vt: vec3, v_slip: dtype):
+        """sqrt(|vt|^2 + v_slip^2): the contact law's friction is -mu fn vt / slip_norm (Coulomb, smoothed)."""
+        return wp.sqrt(wp.dot(vt, vt) + v_slip * v_slip)
+
+    @wp.func
+    def body_mobility(inv_mass: dtype, inv_inertia: mat33, R: mat33, r: vec3, n: vec3):
+        """A free rigid body's inverse effective mass (1/kg) along the unit n at r from its com (world):
+        1/m + (r x n)^T I^-1 (r x n), ``inv_inertia`` I^-1 in the body frame, R body -> world. A joint or a
+        heavier body attached can only lower it, so for a part of a tree it bounds the true mobility from
+        above (the implicit damping is then on the safe side)."""
+        u = wp.transpose(R) * wp.cross(r, n)
+        return inv_mass + wp.dot(u, inv_inertia * u)
+
+    @wp.func
+    def surface_contact(pen: dtype, n: vec3, vp: vec3, ke: dtype, beta: dtype, kd: dtype, mu: dtype, v_slip: dtype,
+                        dt: dtype):
+        """The contact law between a body's sample sphere and a rigid surface that does not move (the table, the
+        fixed palm), linearly implicit in the body's solve: penetration ``pen`` (m), the surface's outward unit
+        normal n, the contact point's velocity vp. Returns the force on the body (its explicit part, with the
+        penalty's stiffness kn linearised at the predicted penetration: - dt kn vn) and P, the matrix the solve
+        adds at that point: dt x the viscous friction (mu fn / slip_norm on the tangent plane) plus
+        dt^2 kn + dt kd spring along n. The body then holds still on the surface like static friction at any
+        slip velocity, and a stiff penalty cannot overshoot and pump energy into a bounce."""
+        vn = wp.dot(vp, n)
+        spring = ke * softplus(pen, beta)
+        damp = dtype(1.0) - kd * vn
+        kn = ke / (dtype(1.0) + wp.exp(-beta * pen)) * wp.max(damp, dtype(0.0))  # softplus' = sigmoid
+        fn = normal_force(spring, vn, kd, dt, dtype(0.0)) - dt * kn * vn
+        vt = vp - vn * n
+        drag = mu * fn / slip_norm(vt, v_slip)
+        gn = dt * dt * kn
+        if damp > dtype(0.0):
+            gn = gn + dt * spring * kd
+        nn = wp.outer(n, n)
+        return fn * n - drag * vt, dt * drag * (wp.identity(n=3, dtype=dtype) - nn) + gn * nn
 
     @wp.func
     def axis_angle(a: vec3, t: dtype):
@@ -171,6 +224,7 @@ def build_funcs(float_type) -> types.SimpleNamespace:
             n = wp.normalize(n * wp.max(dg[0], dtype(0.0)) + beyond)
         return vec4(d, n[0], n[1], n[2])
 
-    return types.SimpleNamespace(softplus=softplus, axis_angle=axis_angle, limit_ramp=limit_ramp,
+    return types.SimpleNamespace(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm,
+                                 body_mobility=body_mobility, surface_contact=surface_contact, axis_angle=axis_angle, limit_ramp=limit_ramp,
                                  limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
                                  box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)

@@ -96,9 +96,8 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         v_slip: dtype  # m/s: slip velocity smoothing the friction
 
     funcs = build_funcs(dtype)
-    softplus, axis_angle, limit_ramp, limit_slope = funcs.softplus, funcs.axis_angle, funcs.limit_ramp, \
-        funcs.limit_slope
-    joint_friction = funcs.joint_friction
+    axis_angle, limit_ramp, limit_slope = funcs.axis_angle, funcs.limit_ramp, funcs.limit_slope
+    joint_friction, surface_contact = funcs.joint_friction, funcs.surface_contact
 
     @wp.func
     def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int, v: int):
@@ -408,35 +407,18 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         Kvw = mat33()
         Kww = mat33()
         table_z = m.table_z[v]
-        Pt = mat33(dtype(1.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(1.0), dtype(0.0),
-                   dtype(0.0), dtype(0.0), dtype(0.0))
-        Nz = mat33(dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0), dtype(0.0),
-                   dtype(0.0), dtype(0.0), dtype(1.0))
+        up = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
         for s in range(S):
             rad = m.sample_radius[v, b, s]
             if rad >= dtype(0.0):
                 ps = x + R * m.sample_pos[v, b, s]
                 pen = table_z + rad - ps[2]
                 if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                    r = ps - vec3(dtype(0.0), dtype(0.0), rad) - c
-                    vp = vc + wp.cross(om, r)
-                    fe = m.ke * softplus(pen, m.beta)
-                    damp = dtype(1.0) - m.kd * vp[2]
-                    fn = fe * wp.max(damp, dtype(0.0))
-                    # the penalty's stiffness, linearised at the predicted penetration (as the joint springs)
-                    kn = m.ke / (dtype(1.0) + wp.exp(-m.beta * pen)) * wp.max(damp, dtype(0.0))
-                    fn = fn - dt * kn * vp[2]
-                    vt = vec3(vp[0], vp[1], dtype(0.0))
-                    cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
-                    f = vec3(dtype(0.0), dtype(0.0), fn) - cf * vt
+                    r = ps - up * rad - c
+                    f, Pc = surface_contact(pen, up, vc + wp.cross(om, r), m.ke, m.beta, m.kd, m.mu, m.v_slip, dt)
                     f_sum = f_sum + f
                     t_sum = t_sum + wp.cross(r, f)
-                    # the viscous parts, dt x (cf P_t + fe kd n n^T), and dt^2 kn n n^T go into the solve's matrix, moved to the com
-                    # (the point's velocity is V - [r]x w)
-                    gn = dt * dt * kn
-                    if damp > dtype(0.0):
-                        gn = gn + dt * fe * m.kd
-                    Pc = dt * cf * Pt + gn * Nz
+                    # P at the contact point moved to the com (the point's velocity is V - [r]x w)
                     Sr = wp.skew(r)
                     Kvv = Kvv + Pc
                     Kvw = Kvw - Pc * Sr

@@ -38,7 +38,8 @@ def build_palm(t) -> types.SimpleNamespace:
     NB, NS = t.NB, t.NS
     fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
     smooth_box, box_face_max = t.smooth_box, t.box_face_max
-    box_distance = build_funcs(dtype).box_distance
+    funcs = build_funcs(dtype)
+    box_distance, normal_force, slip_norm = funcs.box_distance, funcs.normal_force, funcs.slip_norm
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
@@ -71,9 +72,9 @@ def build_palm(t) -> types.SimpleNamespace:
             v = vo + wp.cross(wo, r)  # the object's material point at cp (the palm is still)
             vn = wp.dot(v, n)
             spring = m.palm_ke * softplus(phi, m.palm_beta)
-            fn = spring * wp.max(dtype(1.0) - m.kd * vn, dtype(0.0))
+            fn = normal_force(spring, vn, m.kd, dtype(0.0), dtype(0.0))  # explicit here: palm_wrench scales it
             vt = v - vn * n
-            drag = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)  # friction's viscous coefficient
+            drag = m.mu * fn / slip_norm(vt, m.v_slip)  # friction's viscous coefficient
             elastic = spring * n
             damping = (fn - spring) * n
             friction = -drag * vt

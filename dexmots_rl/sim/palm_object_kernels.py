@@ -53,7 +53,7 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         v_slip: dtype  # m/s
 
     funcs = build_funcs(dtype)
-    softplus, box_distance = funcs.softplus, funcs.box_distance
+    surface_contact, box_distance = funcs.surface_contact, funcs.box_distance
 
     @wp.kernel(module="unique", enable_backward=True)
     def palm_contact(
@@ -88,7 +88,6 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         Kvv = mat33()
         Kvw = mat33()
         Kww = mat33()
-        eye = wp.identity(n=3, dtype=dtype)
         for s in range(S):
             rad = m.sample_radius[v, b, s]
             if rad >= dtype(0.0):
@@ -101,22 +100,9 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
                     if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                         n = Rb * nl  # world, out of the palm: the push on the object
                         r = ps - n * rad - c
-                        vp = vc + wp.cross(om, r)
-                        vn = wp.dot(vp, n)
-                        fe = m.ke * softplus(pen, m.beta)
-                        damp = dtype(1.0) - m.kd * vn
-                        kn = m.ke / (dtype(1.0) + wp.exp(-m.beta * pen)) * wp.max(damp, dtype(0.0))
-                        fn = fe * wp.max(damp, dtype(0.0)) - dt * kn * vn
-                        vt = vp - vn * n
-                        cf = m.mu * fn / wp.sqrt(wp.dot(vt, vt) + m.v_slip * m.v_slip)
-                        f = fn * n - cf * vt
+                        f, Pc = surface_contact(pen, n, vc + wp.cross(om, r), m.ke, m.beta, m.kd, m.mu, m.v_slip, dt)
                         f_sum = f_sum + f
                         t_sum = t_sum + wp.cross(r, f)
-                        gn = dt * dt * kn
-                        if damp > dtype(0.0):
-                            gn = gn + dt * fe * m.kd
-                        nn = wp.outer(n, n)
-                        Pc = dt * cf * (eye - nn) + gn * nn
                         Sr = wp.skew(r)
                         Kvv = Kvv + Pc
                         Kvw = Kvw - Pc * Sr
