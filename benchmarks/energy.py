@@ -12,7 +12,8 @@ start; speed and spin count a free object until it falls 0.1 m below its start, 
 its part joints' peak speed (rad/s or m/s; the knob's hinge), and the largest excess of its energy gain over the
 work the motors did up to then (J; kinetic energy of every body, gravity, the joint springs: sim/energy.py),
 beside ``release_j``, the most the hand's links can give by falling 0.2 m. An excess above ``release_j`` is energy
-the contact made (``worlds_making_energy`` counts those worlds).
+the contact made (``worlds_making_energy`` counts those worlds). ``worlds_outside_physics`` counts the worlds that
+ever left it (``HandSimulator.outside_physics``: an object sample deep in the table, a part far past its stop).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold
     e0, start_z = energy(q, qd), q[:, nu + 2].clone() if free else None
     work = torch.zeros(worlds, dtype=sim.dtype)
     excess = torch.full((worlds,), -float("inf"), dtype=sim.dtype)
+    outside = torch.zeros(worlds, dtype=torch.bool)
     speed = spin = height = joint_speed = 0.0
     near = torch.ones(worlds, dtype=torch.bool)  # the object still within the hand's reach (not fallen away)
     start = time.perf_counter()
@@ -69,6 +71,7 @@ def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold
             work += (ctrl.tau * (out.joint_q[:, :nu] - q[:, :nu])).sum(-1)
             q, qd = out.joint_q, out.joint_qd
             excess = torch.maximum(excess, energy(q, qd) - e0 - work.clamp(min=0))
+            outside |= sim.outside_physics(q, out.body_pose, step_params).cpu()
             if free:
                 # a cube that fell off the palm falls on (the scene has no floor): its speed is gravity's
                 near &= q[:, nu + 2] > start_z - FALLEN
@@ -92,6 +95,7 @@ def measure(task: str, worlds: int, steps: int, seed: int, overrides: dict, hold
             "fallen_worlds": int((~near).sum()) if free else 0, "max_energy_excess_j": round(float(excess.max()), 4),
             "worlds_making_energy": int((excess > release).sum()),
             "release_j": round(release, 3), "motor_work_j": round(float(work.max()), 2), "finite": finite,
+            "worlds_outside_physics": int(outside.sum()),
             "seconds": round(time.perf_counter() - start, 1)}
 
 

@@ -1,0 +1,83 @@
+"""Bang-bang hands against every scene and every library object: contact makes no energy, no body goes through
+the table, no world blows up.
+
+From each task's reset every hand joint gets its full motor torque with a random sign per world and joint that
+flips every step, or is drawn anew every 3 steps (``benchmarks/energy.py``, which reports the same figures for
+64 worlds and 2000 steps). The object's energy (kinetic, gravity, joint springs: sim/energy.py) may grow by the
+work the motors did plus what the hand's links can give by falling (``release_j``), no more. Before the tool
+scenes' fingers had the contact law's implicit damping, the scissors' blade and a pair of pliers were flung at
+tens of m/s and through the table within these steps.
+
+``repose_cube`` is also struck with variable-impedance actions (stiffest PD targets at opposite ends, flipping
+every step): in any one step the cube may gain at most the work the motors can do in it, sum_j effort_j |dq_j|.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+
+from dexmots_rl.assets.objects import list_objects
+from dexmots_rl.envs import list_tasks, make_env
+
+ENERGY_BENCHMARK = Path(__file__).resolve().parents[1] / "benchmarks" / "energy.py"
+WORLDS, STEPS = 4, 120
+MAX_EXCESS_J = 0.5  # beyond the links' release (penalty energy stored in contacts and stops is left out)
+MAX_SPEED = 5.0  # m/s: a free object's peak speed while near the hand
+MAX_SPIN = 200.0  # rad/s
+MAX_JOINT_SPEED = 200.0  # rad/s or m/s: an object part's
+SCENES = [(task, {}) for task in list_tasks() if task != "operate"]
+SCENES += [("operate", {"object": name}) for name, _ in list_objects()]
+
+
+def _energy_benchmark():
+    spec = importlib.util.spec_from_file_location("energy_benchmark", ENERGY_BENCHMARK)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("hold", [0, 3], ids=["flip_every_step", "hold_3_steps"])
+@pytest.mark.parametrize("task, overrides", SCENES, ids=[o.get("object", t) for t, o in SCENES])
+def test_bang_bang_makes_no_energy(task, overrides, hold):
+    r = _energy_benchmark().measure(task, worlds=WORLDS, steps=STEPS, seed=0, overrides=overrides, hold=hold)
+    assert r["finite"], r
+    assert r["max_energy_excess_j"] <= r["release_j"] + MAX_EXCESS_J, r
+    assert r["peak_base_speed"] <= MAX_SPEED and r["peak_base_spin"] <= MAX_SPIN, r
+    assert r["peak_joint_speed"] <= MAX_JOINT_SPEED, r
+    assert r["worlds_outside_physics"] == 0, r  # no object sample through the table, no part through a stop
+
+
+@pytest.mark.parametrize("hold", [0, 3], ids=["flip_every_step", "hold_3_steps"])
+def test_variable_impedance_strikes_do_not_launch_the_cube(hold):
+    """``repose_cube`` under ``vi`` actions at ±1 (PD targets at the joints' ends, stiffness at either bound),
+    random signs that flip every step (``hold`` 0) or are drawn anew every ``hold`` steps: in no step does the cube gain more energy than the motors can do in it,
+    sum_j effort_j |dq_j| (each motor's torque saturates at its effort), plus the links' release."""
+    worlds = 8
+    env = make_env("repose_cube", num_envs=worlds, seed=0, differentiable=False, action="vi", raw=True)
+    sim, nu = env.sim, env.sim.nu
+    effort = torch.as_tensor(sim.scene.actuator_effort, dtype=sim.dtype)
+    assert (effort > 0).all()  # the bound below needs every motor saturated
+    release = float(sim.scene.link_mass.sum()) * 9.81 * 0.2
+    td = env.reset()
+    start_z = td["sim", "joint_q"][:, nu + 2].clone()
+    gen = torch.Generator().manual_seed(0)
+    sign = torch.where(torch.rand(worlds, 2 * nu, generator=gen) < 0.5, -1.0, 1.0)
+    for step in range(STEPS):
+        q, qd = td["sim", "joint_q"], td["sim", "joint_qd"]
+        td["action"] = sign
+        td = env.step(td)["next"]
+        q1, qd1 = td["sim", "joint_q"], td["sim", "joint_qd"]
+        assert torch.isfinite(q1).all() and torch.isfinite(qd1).all()
+        gain = sim.object_energy(q1, qd1) - sim.object_energy(q, qd)
+        work = (effort * (q1[:, :nu] - q[:, :nu]).abs()).sum(-1)
+        assert (gain <= work + release).all(), (step, gain.max().item(), work.max().item())
+        near = q1[:, nu + 2] > start_z - 0.1  # a cube that slid off the palm falls (the scene has no floor)
+        assert (qd1[near, nu:nu + 3].norm(dim=-1) <= MAX_SPEED).all(), step
+        if not hold:
+            sign = -sign
+        elif (step + 1) % hold == 0:
+            sign = torch.where(torch.rand(worlds, 2 * nu, generator=gen) < 0.5, -1.0, 1.0)
