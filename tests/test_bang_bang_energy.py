@@ -6,7 +6,7 @@ flips every step, or is drawn anew every 3 steps (``benchmarks/energy.py``, whic
 64 worlds and 2000 steps). The object's energy (kinetic, gravity, joint springs: sim/energy.py) may grow by the
 work the motors did plus what the hand's links can give by falling (``release_j``), no more. Before the tool
 scenes' fingers had the contact law's implicit damping, strikes flung scissors_b's light blade at 6.5 m/s within
-these steps (hold 3; 64 worlds x 2000 steps of the new law stay below 1 m/s).
+these steps (hold 3; in 64 worlds x 2000 steps of the new law none passes 3 m/s).
 
 ``repose_cube`` is also struck with variable-impedance actions (stiffest PD targets at opposite ends, flipping
 every step): in any one step the cube may gain at most the work the motors can do in it, sum_j effort_j |dq_j|.
