@@ -54,8 +54,9 @@ def test_bang_bang_makes_no_energy(task, overrides, hold):
 @pytest.mark.parametrize("hold", [0, 3], ids=["flip_every_step", "hold_3_steps"])
 def test_variable_impedance_strikes_do_not_launch_the_cube(hold):
     """``repose_cube`` under ``vi`` actions at ±1 (PD targets at the joints' ends, stiffness at either bound),
-    random signs that flip every step (``hold`` 0) or are drawn anew every ``hold`` steps: in no step does the cube gain more energy than the motors can do in it,
-    sum_j effort_j |dq_j| (each motor's torque saturates at its effort), plus the links' release."""
+    random signs that flip every step (``hold`` 0) or are drawn anew every ``hold`` steps: in no step does the cube
+    gain more energy than the motors can do in it, sum_j effort_j |dq_j| (each motor's torque saturates at its
+    effort), plus the links' release."""
     worlds = 16
     env = make_env("repose_cube", num_envs=worlds, seed=0, differentiable=False, action="vi", raw=True)
     sim, nu = env.sim, env.sim.nu
@@ -63,7 +64,6 @@ def test_variable_impedance_strikes_do_not_launch_the_cube(hold):
     assert (effort > 0).all()  # the bound below needs every motor saturated
     release = float(sim.scene.link_mass.sum()) * 9.81 * 0.2
     td = env.reset()
-    start_z = td["sim", "joint_q"][:, nu + 2].clone()
     gen = torch.Generator().manual_seed(0)
     sign = torch.where(torch.rand(worlds, 2 * nu, generator=gen) < 0.5, -1.0, 1.0)
     for step in range(STEPS):
@@ -75,8 +75,6 @@ def test_variable_impedance_strikes_do_not_launch_the_cube(hold):
         gain = sim.object_energy(q1, qd1) - sim.object_energy(q, qd)
         work = (effort * (q1[:, :nu] - q[:, :nu]).abs()).sum(-1)
         assert (gain <= work + release).all(), (step, gain.max().item(), work.max().item())
-        near = q1[:, nu + 2] > start_z - 0.1  # a cube that slid off the palm falls (the scene has no floor)
-        assert (qd1[near, nu:nu + 3].norm(dim=-1) <= MAX_SPEED).all(), step
         if not hold:
             sign = -sign
         elif (step + 1) % hold == 0:
