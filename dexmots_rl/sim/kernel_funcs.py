@@ -225,6 +225,6 @@ def build_funcs(float_type) -> types.SimpleNamespace:
         return vec4(d, n[0], n[1], n[2])
 
     return types.SimpleNamespace(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm,
-                                 body_mobility=body_mobility, surface_contact=surface_contact, axis_angle=axis_angle, limit_ramp=limit_ramp,
-                                 limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
+                                 body_mobility=body_mobility, surface_contact=surface_contact, axis_angle=axis_angle,
+                                 limit_ramp=limit_ramp, limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
                                  box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)
