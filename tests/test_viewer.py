@@ -248,7 +248,10 @@ def test_tool_task_arrows_are_scaled_to_its_forces_and_show_the_target(tmp_path)
     from dexmots_rl.recording.scene_messages import TYPICAL_ARROW_SHARE, TYPICAL_FLOOR
     from dexmots_rl.viz.viewer import ARROW_COLORS
 
+    import torch
+
     env = make_env("door_handle", num_envs=2, differentiable=False, seed=0, max_episode_steps=6)
+    torch.manual_seed(0)  # the random actions (torch's generator): the same contact, whatever ran before
     path = tmp_path / "door.mcap"
     with EpisodeRecorder(path, env) as rec:
         rec.record_rollout(env.rollout(6, None, tensordict=env.reset(), auto_reset=False, break_when_any_done=False))
