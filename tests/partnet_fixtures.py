@@ -180,3 +180,52 @@ def keyboard(root: Path, keys: int = 5) -> Path:
         limit = (0.05, 0.05) if k == keys else (0, 0.02)
         folder.joint(f"joint_{k}", "prismatic", "link_0", f"link_{k}", axis=(0, -1, 0), limit=limit)
     return folder.write()
+
+
+def disc(radius: float, centre, sides: int = 24) -> trimesh.Trimesh:
+    """A flat disc in the x-y plane (a wall plate standing on its edge in the y-up frame; no volume)."""
+    angles = 2 * np.pi * np.arange(sides) / sides
+    rim = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(sides)], 1)
+    faces = [[sides, k, (k + 1) % sides] for k in range(sides)]
+    return trimesh.Trimesh(np.vstack([rim, [[0.0, 0.0, 0.0]]]) + centre, faces, process=False)
+
+
+def wall_switch(root: Path) -> Path:
+    """A round wall plate standing on its edge in front of a back box, and a toggle on a hinge: the plate's
+    smallest box may turn any way in its plane (a tilted one would reach through the table)."""
+    return (PartNetFolder(root, "Switch")
+            .link("link_1", [disc(0.5, (0, 0.5, 0)), box((0.8, 0.5, 0.4), (0, 0.25, -0.2))])
+            .link("link_0", [box((0.1, 0.3, 0.15), (0, 0.5, 0.075))], pivot=(0, 0.5, 0), kind="hinge",
+                  label="toggle")
+            .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)
+            .joint("joint_0", "revolute", "link_1", "link_0", axis=(1, 0, 0), limit=(-0.3, 0.3))
+            .write())
+
+
+def cabinet(root: Path) -> Path:
+    """A cabinet of separate boards (sides, back, top, a thin bottom) with a door on a hinge at its side, open
+    at rest: more board corners than the table samples a body keeps, and an unsprung door that gravity would
+    swing."""
+    boards = [box((0.04, 1.0, 0.6), (-0.48, 0.5, 0)), box((0.04, 1.0, 0.6), (0.48, 0.5, 0)),
+              box((1.0, 1.0, 0.04), (0, 0.5, -0.28)), box((1.0, 0.04, 0.6), (0, 0.98, 0)), quad((1.0, 0.6), (0, 0, 0))]
+    return (PartNetFolder(root, "StorageFurniture")
+            .link("link_1", boards)
+            .link("link_0", [box((0.9, 0.9, 0.03), (0.0, 0.5, 0.45))], pivot=(-0.45, 0.5, 0.3), kind="hinge",
+                  label="door")
+            .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)
+            .joint("joint_0", "revolute", "link_1", "link_0", axis=(0, 1, 0), limit=(0, 1.6),
+                   extra='    <!-- <origin xyz="9 9 9"/> a commented origin, as some files have -->')
+            .write())
+
+
+def screw_cap(root: Path) -> Path:
+    """A bottle and its cap on stacked joints, as PartNet writes screw caps: the cap rises on a prismatic joint
+    into an empty ``*_helper`` link and turns on a continuous joint below it."""
+    return (PartNetFolder(root, "Bottle")
+            .link("link_1", [box((0.5, 0.8, 0.5), (0, 0.4, 0)), open_box((0.25, 0.1, 0.25), (0, 0.85, 0))])
+            .link("link_0_helper", [], pivot=(0, 0.9, 0))
+            .link("link_0", [box((0.3, 0.15, 0.3), (0, 0.95, 0))], pivot=(0, 0.9, 0), kind="hinge", label="lid")
+            .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)
+            .joint("joint_2", "prismatic", "link_1", "link_0_helper", axis=(0, 1, 0), limit=(0, 0.1))
+            .joint("joint_0", "continuous", "link_0_helper", "link_0", axis=(0, 1, 0))
+            .write())

@@ -137,6 +137,27 @@ def _samples(m, geoms) -> tuple[list, list]:
     return pos, rad
 
 
+SUPPORT_TOLERANCE = 1e-3  # m: samples this close to a body's lowest (its frame's -z) are its support on the table
+
+
+def _spread_samples(pos: np.ndarray, rad: np.ndarray, count: int) -> list[int]:
+    """Indices of ``count`` of the samples: first the body's support (those within :data:`SUPPORT_TOLERANCE` of
+    its lowest, along its frame's -z: a free base's frame stands on the table), then the rest, each group spread
+    out by farthest-point sampling. A base that keeps only some corners of its bottom tips over them."""
+    low = pos[:, 2] - rad
+    support = np.flatnonzero(low <= low.min() + SUPPORT_TOLERANCE)
+    chosen: list[int] = []
+    for group in (support, np.arange(len(pos))):
+        left = [k for k in group if k not in chosen]
+        while left and len(chosen) < count:
+            if chosen:
+                gap = np.min(np.linalg.norm(pos[left][:, None] - pos[chosen][None], axis=-1), axis=1)
+            else:
+                gap = np.linalg.norm(pos[left] - pos[left].mean(axis=0), axis=1)
+            chosen.append(left.pop(int(np.argmax(gap))))
+    return chosen
+
+
 def object_tree(m, d) -> ObjectTree:
     """Read the object tree under body ``object`` from a compiled model ``m`` and its data ``d`` after
     ``mj_forward``; raises :class:`AssetError` naming the body or joint that does not fit."""
@@ -207,8 +228,8 @@ def object_tree(m, d) -> ObjectTree:
     for i, b in enumerate(bodies):
         geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b and (m.geom_contype[g] or m.geom_conaffinity[g])]
         pos, rad = _samples(m, geoms)
-        if len(pos) > MAX_SAMPLES:  # keep the points lowest and farthest out in the body frame's spread
-            order = np.argsort(-np.linalg.norm(np.asarray(pos) - np.mean(pos, 0), axis=1))[:MAX_SAMPLES]
+        if len(pos) > MAX_SAMPLES:
+            order = _spread_samples(np.asarray(pos), np.asarray(rad), MAX_SAMPLES)
             pos, rad = [pos[k] for k in order], [rad[k] for k in order]
         sample_pos[i, : len(pos)] = pos
         sample_radius[i, : len(pos)] = rad

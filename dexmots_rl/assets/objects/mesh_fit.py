@@ -7,7 +7,11 @@ have neither a volume nor a signed distance. A part is approximated in two ways:
   :data:`MAX_COMPONENTS_PER_PIECE`); components are grouped by a greedy agglomerative clustering that merges,
   at each step, the two groups whose common box adds the least volume, until ``max_boxes`` groups are left;
   each group gets its minimum-volume oriented bounding box. Open or hollow shapes become solid (a drawer
-  is a solid block, a ring is filled): fingers collide with the boxes' outside only.
+  is a solid block, a ring is filled): fingers collide with the boxes' outside only. Given the vertical (``up``),
+  a group whose minimum box reaches below the group's lowest point (a disc or a round foot: any turn of the box
+  is as small, and its corners poke out) or is hardly smaller than an upright one gets the upright box instead,
+  turned about the vertical only: its bottom face lies at the group's lowest point, so an object stands on
+  flat faces, as it stands on its meshes.
 * **collision, alternatively**: the convex hull of all the pieces, one watertight mesh (its signed distance
   is well defined; a union of overlapping hulls would not have one).
 * **drawing**: the union of the convex hulls of the same components (each hull is closed, so the union is
@@ -107,8 +111,9 @@ def _seed_groups(sets: list[np.ndarray]) -> list[np.ndarray]:
 
 
 @_quiet
-def fit_boxes(pieces: list[trimesh.Trimesh], max_boxes: int, min_half: float) -> list[Box]:
-    """At most ``max_boxes`` oriented boxes covering the pieces (see the module docstring)."""
+def fit_boxes(pieces: list[trimesh.Trimesh], max_boxes: int, min_half: float, up=None) -> list[Box]:
+    """At most ``max_boxes`` oriented boxes covering the pieces (see the module docstring); ``up``: the
+    vertical in the pieces' frame (None: boxes of any orientation)."""
     groups = _seed_groups(components(pieces))
     volumes = [_pca_box_volume(g, min_half) for g in groups]
     cost: dict[tuple[int, int], float] = {}
@@ -126,7 +131,48 @@ def fit_boxes(pieces: list[trimesh.Trimesh], max_boxes: int, min_half: float) ->
         groups.append(_hull_points(np.concatenate([groups[i], groups[j]])))
         volumes.append(_pca_box_volume(groups[-1], min_half))
         alive = [k for k in alive if k not in (i, j)] + [len(groups) - 1]
-    return [_oriented_box(groups[k], min_half) for k in alive]
+    return [_box(groups[k], min_half, up) for k in alive]
+
+
+UPRIGHT_VOLUME_RATIO = 1.05  # an upright box at most this much larger than the minimum one is preferred
+POKE_TOLERANCE = 0.005  # of a group's height: a minimum box reaching lower than this below its points is refused
+
+
+def _box(points: np.ndarray, min_half: float, up) -> Box:
+    """The group's minimum oriented box, or its upright box (see the module docstring)."""
+    best = _oriented_box(points, min_half)
+    if up is None:
+        return best
+    up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+    upright = _upright_box(points, min_half, up)
+    heights = points @ up
+    corners = best[1] + (np.array(list(np.ndindex(2, 2, 2))) * 2 - 1) * best[0] @ best[2].T
+    poke = heights.min() - (corners @ up).min()
+    if poke > max(min_half, POKE_TOLERANCE * np.ptp(heights)) or \
+            np.prod(upright[0]) <= UPRIGHT_VOLUME_RATIO * np.prod(best[0]):
+        return upright
+    return best
+
+
+def _upright_box(points: np.ndarray, min_half: float, up: np.ndarray) -> Box:
+    """The smallest box with one axis along ``up`` (turned about it only) holding the points."""
+    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    frame = np.column_stack([side, np.cross(up, side), up])  # columns: two horizontal axes and up
+    local = points @ frame
+    try:
+        to_origin, extents_2d = trimesh.bounds.oriented_bounds_2D(local[:, :2])
+        turn = np.linalg.inv(to_origin)[:2, :2]
+    except Exception:  # noqa: BLE001 - qhull rejects collinear plans: keep the frame's axes
+        turn = np.eye(2)
+    if np.linalg.det(turn) < 0:
+        turn = turn @ np.diag([1.0, -1.0])
+    axes = np.eye(3)
+    axes[:2, :2] = turn
+    rotation = frame @ axes
+    box_local = points @ rotation
+    low, high = box_local.min(axis=0), box_local.max(axis=0)
+    return np.maximum((high - low) / 2, min_half), rotation @ ((low + high) / 2), rotation
 
 
 @_quiet

@@ -25,7 +25,9 @@ mesh paths relative to the file survive); trimesh loads the meshes. What the loa
 * **Physics.** PartNet has no usable masses: each box (or hull) weighs ``density`` times its volume (boxes'
   overlaps count twice); ``<inertial>`` is ignored. Joints have no spring; damping and friction come from
   ``<dynamics damping friction>`` when present, else :data:`HINGE_DEFAULTS` / :data:`SLIDE_DEFAULTS`, in SI
-  units of the scaled object. ``<limit effort velocity>`` and ``<mimic>`` are ignored.
+  units of the scaled object, the friction raised to :data:`HOLD_MARGIN` times the largest pull of gravity on
+  the part (and the parts it carries) about its joint: a lid, door or handle without a spring stays where it is
+  put, as real ones do (the data set has no friction), instead of falling and rocking the object. ``<limit effort velocity>`` and ``<mimic>`` are ignored.
 
 A bad file raises one :class:`UrdfError` naming the file and the element; nothing is written to disk. Bad
 files include magnitudes no object has (:mod:`.urdf_check`'s bounds; a scaled size outside :data:`SIZE_RANGE`;
@@ -36,6 +38,7 @@ vertices, and a file without a moving joint (nothing to operate).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -52,7 +55,7 @@ from .urdf_check import MAX_COORDINATE, UrdfError, UrdfJoint, check_urdf
 
 __all__ = ["load_urdf", "UrdfError", "DEFAULT_SIZE", "DEFAULT_DENSITY", "CONTINUOUS_RANGE", "HINGE_DEFAULTS",
            "SLIDE_DEFAULTS", "PIVOT_RADIUS", "MIN_HALF_EXTENT", "SIZE_RANGE", "MAX_SLIDE_TRAVEL",
-           "DENSITY_RANGE"]
+           "DENSITY_RANGE", "HOLD_MARGIN"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +69,8 @@ MIN_HALF_EXTENT = 0.001  # m: flat pieces become 2 mm thick boxes
 SIZE_RANGE = (0.01, 1.0)  # m, the scaled object's longest side: a button to a cabinet on the hand's table
 MAX_SLIDE_TRAVEL = 2.0  # a slide's limits, in units of the object's longest side
 DENSITY_RANGE = (10.0, 2.0e4)  # kg/m^3: foam to lead
+HOLD_MARGIN = 1.5  # default joint friction over the largest gravity torque (or force) on the part
+GRAVITY = 9.81  # m/s^2
 _PALETTE = ((0.62, 0.62, 0.66, 1.0), (0.85, 0.45, 0.2, 1.0), (0.25, 0.55, 0.85, 1.0), (0.35, 0.7, 0.35, 1.0),
             (0.8, 0.75, 0.3, 1.0))
 
@@ -130,7 +135,15 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
             meshes[_safe(name) + "_hull"] = hull = mesh_fit.convex_hull(collided[name], MIN_HALF_EXTENT)
             geoms = [Geom("hull", "mesh", mesh=_safe(name) + "_hull", mass=density * hull.volume, rgba=rgba)]
         else:
-            geoms = _box_geoms(collided[name], max_geoms_per_part, density, rgba)
+            up = layout.root_pose[name][:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the table's normal, part frame
+            geoms = _box_geoms(collided[name], max_geoms_per_part, density, rgba, up)
+            if index == 0 and geoms:  # flat pieces thickened below the table: the object stands on its boxes
+                lift = -min(_lowest(g) for g in geoms)
+                if lift > 0:
+                    geoms = [dataclasses.replace(g, pos=_vec(np.add(g.pos, (0.0, 0.0, lift)))) for g in geoms]
+                    for piece in drawn[name]:
+                        piece.apply_translation((0.0, 0.0, lift))
+                    origin, grasp = origin + (0.0, 0.0, lift), grasp + np.array((0.0, 0.0, lift))
         if not geoms:
             pivot = (np.zeros(3) if index > 0 else
                      next((factor * layout.pose_in_parent[c][:3, 3] + origin for c in layout.parts[1:]
@@ -156,16 +169,52 @@ def load_urdf(path: str | Path, *, scale: float | None = None, size: float | Non
     name = _safe(folder.name if path.name == "mobility.urdf" and folder.name else path.stem)
     described = ", ".join(f"{p}" + (f" ({labels[p]})" if p in labels else "") for p in layout.parts)
     try:
-        return ObjectAsset(
+        return _held_against_gravity(ObjectAsset(
             name=name, object_class=object_class, parts=tuple(parts), base=base,
             operated_joint=_safe(operated.name) if operated else None, grasp=_vec(grasp),
             params={"scale": factor, "size": factor * longest, "density": float(density),
                     "urdf_origin_x": float(origin[0]), "urdf_origin_y": float(origin[1]),
                     "urdf_origin_z": float(origin[2])},
             meshes=meshes,
-            description=f"{object_class} loaded from {path} (parts: {described}; scale {factor:.4g})")
+            description=f"{object_class} loaded from {path} (parts: {described}; scale {factor:.4g})"),
+            {_safe(j.name) for j in tree.joints.values() if j.friction is not None})
     except ObjectError as error:  # e.g. two link names that differ only in characters MJCF names cannot hold
         raise UrdfError(f"{where}: {error}") from None
+
+
+def _held_against_gravity(asset: ObjectAsset, given: set[str]) -> ObjectAsset:
+    """``asset`` with the friction of every joint not in ``given`` (those with a file's value) raised to
+    :data:`HOLD_MARGIN` times the largest gravity torque about a hinge (over a turn) or force along a slide on
+    the part and the parts below it, at rest."""
+    from .scene import part_transforms
+
+    world = part_transforms(asset)
+    mass, centre = {}, {}
+    for part in asset.parts:
+        rotation, shift = world[part.name][:3, :3], world[part.name][:3, 3]
+        points = [asset.meshes[g.mesh].center_mass if g.kind == "mesh" else np.asarray(g.pos) for g in part.geoms]
+        weights = np.array([g.mass for g in part.geoms])
+        mass[part.name] = weights.sum()
+        centre[part.name] = rotation @ (weights @ np.array(points) / weights.sum()) + shift
+    carried = {p.name: [p.name] for p in asset.parts}
+    for part in reversed(asset.parts[1:]):  # children come after their parents
+        carried[part.parent] += carried[part.name]
+    parts = [asset.parts[0]]
+    for part in asset.parts[1:]:
+        joint = part.joint
+        if joint.name not in given:
+            total = sum(mass[p] for p in carried[part.name])
+            com = sum(mass[p] * centre[p] for p in carried[part.name]) / total
+            axis = world[part.name][:3, :3] @ np.asarray(joint.axis)
+            if joint.kind == "slide":
+                pull = total * GRAVITY * abs(axis[2])
+            else:
+                arm = com - (world[part.name] @ np.append(joint.anchor, 1.0))[:3]
+                arm = arm - (arm @ axis) * axis
+                pull = total * GRAVITY * float(np.linalg.norm(arm)) * math.sqrt(max(0.0, 1.0 - axis[2] ** 2))
+            joint = dataclasses.replace(joint, friction=float(max(joint.friction, HOLD_MARGIN * pull)))
+        parts.append(dataclasses.replace(part, joint=joint))
+    return dataclasses.replace(asset, parts=tuple(parts))
 
 
 @contextlib.contextmanager
@@ -328,12 +377,19 @@ def _geom_mesh(where, element, spec, geom, meshdir: Path, cache: dict) -> trimes
     return cache[key].copy()
 
 
-def _box_geoms(pieces, max_boxes: int, density: float, rgba) -> list[Geom]:
+def _box_geoms(pieces, max_boxes: int, density: float, rgba, up) -> list[Geom]:
     geoms = []
-    for i, (half, centre, rotation) in enumerate(mesh_fit.fit_boxes(pieces, max_boxes, MIN_HALF_EXTENT)):
+    for i, (half, centre, rotation) in enumerate(mesh_fit.fit_boxes(pieces, max_boxes, MIN_HALF_EXTENT, up)):
         geoms.append(Geom(f"box{i}", "box", _vec(half), pos=_vec(centre), quat=_quat(rotation),
                           mass=density * 8.0 * float(np.prod(half)), rgba=rgba))
     return geoms
+
+
+def _lowest(geom: Geom) -> float:
+    """The lowest z of a box geom's corners in its part's frame."""
+    rotation = np.zeros(9)
+    mujoco.mju_quat2Mat(rotation, np.asarray(geom.quat, dtype=float))
+    return float(geom.pos[2] - np.abs(rotation.reshape(3, 3)[2]) @ np.asarray(geom.size))
 
 
 def _joint(spec_joint, urdf: UrdfJoint, factor: float) -> Joint:
