@@ -140,6 +140,18 @@ def _samples(m, geoms) -> tuple[list, list]:
 SUPPORT_TOLERANCE = 1e-3  # m: samples this close to a body's lowest (its frame's -z) are its support on the table
 
 
+def _stands_on(kept: np.ndarray, kept_rad: np.ndarray, pos: np.ndarray, rad: np.ndarray, com: np.ndarray) -> bool:
+    """Whether the kept samples of a base include a support (samples at its lowest) around its mass centre."""
+    from scipy.spatial import Delaunay, QhullError
+
+    low = (pos[:, 2] - rad).min()
+    support = kept[kept[:, 2] - kept_rad <= low + SUPPORT_TOLERANCE][:, :2]
+    try:
+        return len(support) >= 3 and Delaunay(support).find_simplex(com[:2]) >= 0
+    except QhullError:  # collinear: an edge, not a support
+        return False
+
+
 def _spread_samples(pos: np.ndarray, rad: np.ndarray, count: int) -> list[int]:
     """Indices of ``count`` of the samples: first the body's support (those within :data:`SUPPORT_TOLERANCE` of
     its lowest, along its frame's -z: a free base's frame stands on the table), then the rest, each group spread
@@ -228,8 +240,11 @@ def object_tree(m, d) -> ObjectTree:
     for i, b in enumerate(bodies):
         geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b and (m.geom_contype[g] or m.geom_conaffinity[g])]
         pos, rad = _samples(m, geoms)
-        if len(pos) > MAX_SAMPLES:
-            order = _spread_samples(np.asarray(pos), np.asarray(rad), MAX_SAMPLES)
+        if len(pos) > MAX_SAMPLES:  # the points farthest out in the body frame's spread
+            order = list(np.argsort(-np.linalg.norm(np.asarray(pos) - np.mean(pos, 0), axis=1))[:MAX_SAMPLES])
+            if i == 0 and free and not _stands_on(np.asarray(pos)[order], np.asarray(rad)[order],
+                                                  np.asarray(pos), np.asarray(rad), inertias[0][1]):
+                order = _spread_samples(np.asarray(pos), np.asarray(rad), MAX_SAMPLES)
             pos, rad = [pos[k] for k in order], [rad[k] for k in order]
         sample_pos[i, : len(pos)] = pos
         sample_radius[i, : len(pos)] = rad
