@@ -10,7 +10,7 @@ gets its full motor torque (``gear`` x ±1, a random sign per world and joint) w
 one JSON line per task: the object's peak base speed (m/s), spin (rad/s) and height gain (m, its origin above its
 start; speed and spin count a free object until it falls 0.1 m below its start, ``fallen_worlds`` counts those),
 its part joints' peak speed (rad/s or m/s; the knob's hinge), and the largest excess of its energy gain over the
-work the motors did up to then (J; kinetic energy of every body, gravity, the joint springs: sim/energy.py),
+work the motors did up to then (J; kinetic energy of every body, gravity, the joint springs: sim/_energy.py),
 beside ``release_j``, the most the hand's links can give by falling 0.2 m. An excess above ``release_j`` is energy
 the contact made (``worlds_making_energy`` counts those worlds). ``worlds_outside_physics`` counts the worlds that
 ever left it (``HandSimulator.outside_physics``: an object sample deep in the table, a part far past its stop).

@@ -1,4 +1,4 @@
-"""The Allegro hand with an articulated library object on a table (sim/articulated.py)."""
+"""The Allegro hand with an articulated library object on a table (sim/_articulated.py)."""
 
 import tempfile
 from pathlib import Path
@@ -12,7 +12,7 @@ from dexmots_rl.assets.objects import list_objects, load_object
 from dexmots_rl.envs.tasks.allegro.operate_object import HAND_CONTACT
 from dexmots_rl.quaternions import quat_to_matrix
 from dexmots_rl.sim import ArticulatedScene, ArticulatedSimulator, load_scene
-from dexmots_rl.sim.energy import tree_energy, tree_kinematics
+from dexmots_rl.sim._energy import tree_energy, tree_kinematics
 
 # a sample of the library: a free base with a hinge, a fixed base with a slide, a free base lying flat
 OBJECTS = ["spray_bottle_a", "drawer_a", "scissors_a"]
@@ -141,7 +141,7 @@ def test_strike_peaks_cover_the_library():
 @pytest.mark.parametrize("name", [name for name, _ in list_objects()])
 def test_bang_bang_fingers_inject_no_energy(name):
     """Random full-torque actions held for 3 steps strike the object (the tool tasks' contact law); its energy (kinetic energy of every body,
-    gravity, its joints' springs and rotor inertia: sim/energy.py, checked against the simulator's body poses)
+    gravity, its joints' springs and rotor inertia: sim/_energy.py, checked against the simulator's body poses)
     never gains more than the work the motors have done (sum of torque x joint travel) plus what the hand's links
     can release by falling (their weight over 0.2 m). That bound is loose (the motors' ~55 J over 2 s go mostly
     into the joints' damping, the objects' energies stay below 0.3 J), so the peaks are also bounded per object

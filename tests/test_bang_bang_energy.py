@@ -3,7 +3,7 @@ the table, no world blows up.
 
 From each task's reset every hand joint gets its full motor torque with a random sign per world and joint that
 flips every step, or is drawn anew every 3 steps (``benchmarks/energy.py``, which reports the same figures for
-64 worlds and 2000 steps). The object's energy (kinetic, gravity, joint springs: sim/energy.py) may grow by the
+64 worlds and 2000 steps). The object's energy (kinetic, gravity, joint springs: sim/_energy.py) may grow by the
 work the motors did plus what the hand's links can give by falling (``release_j``), no more. Before the tool
 scenes' fingers had the contact law's implicit damping, strikes flung scissors_b's light blade at 6.5 m/s within
 these steps (hold 3; in 64 worlds x 2000 steps of the new law none passes 3 m/s).

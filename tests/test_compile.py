@@ -14,7 +14,7 @@ from dexmots_rl.apps.bench_compile import run_compile
 
 @pytest.mark.slow  # CUDA code generation of the renderer (CI also builds the scenes' kernels for CUDA)
 def test_renderer_compiles_to_ptx_without_a_gpu():
-    from dexmots_rl.sim.aot import compile_renderer
+    from dexmots_rl.sim._aot import compile_renderer
 
     row = compile_renderer("cuda", arch=90)
     assert row["ok"], row.get("error")

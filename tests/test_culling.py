@@ -15,7 +15,7 @@ import torch
 from dexmots_rl.apps.bench_setup import bench_task
 from dexmots_rl.envs import task_contact, task_scene
 from dexmots_rl.sim import Control, Simulator
-from dexmots_rl.sim import simulator as simulator_module
+from dexmots_rl.sim import _simulator as simulator_module
 
 
 def test_box_of_planes_reads_centre_and_half_extents():

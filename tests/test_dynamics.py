@@ -267,7 +267,7 @@ def test_cpu_threads_setting(monkeypatch):
     """DEXMOTS_CPU_THREADS caps the world blocks a step is split into; a bad value names the variable."""
     import warp as wp
 
-    from dexmots_rl.sim.stepper import world_blocks
+    from dexmots_rl.sim._stepper import world_blocks
 
     cpu = wp.get_device("cpu")
     monkeypatch.setenv("DEXMOTS_CPU_THREADS", "1")

@@ -1,5 +1,5 @@
-"""Hand-written adjoints (``adj_polytope_sdf`` and ``adj_contact_force`` in contact_kernels.py,
-``adj_link_inertia`` in kernels.py) against central finite differences, in float64: the knob's signed
+"""Hand-written adjoints (``adj_polytope_sdf`` and ``adj_contact_force`` in _contact_kernels.py,
+``adj_link_inertia`` in _kernels.py) against central finite differences, in float64: the knob's signed
 distance at face, edge and corner points, the contact law (against a hinged and a free object) and a link's
 mass-matrix and bias-force contribution with respect to every differentiable input.
 
@@ -14,7 +14,7 @@ import torch
 import warp as wp
 
 from dexmots_rl.sim import Simulator, load_scene
-from dexmots_rl.sim.constants import GEOM_SDF
+from dexmots_rl.sim._constants import GEOM_SDF
 
 EPS = 1e-6
 FREE_BOX = Path(__file__).parent / "assets" / "free_box.xml"

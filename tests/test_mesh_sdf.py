@@ -1,5 +1,5 @@
 """Mesh geoms of an articulated object collide with the fingers through their signed-distance grid
-(sim/mesh_sdf.py, ``grid_distance`` in sim/kernel_funcs.py, ``finger_contact`` in sim/hand_kernels.py)."""
+(sim/_mesh_sdf.py, ``grid_distance`` in sim/_kernel_funcs.py, ``finger_contact`` in sim/_hand_kernels.py)."""
 
 import functools
 import tempfile
@@ -14,11 +14,11 @@ import warp as wp
 from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import load_object
 from dexmots_rl.sim import load_scene
-from dexmots_rl.sim.articulated import ArticulatedSimulator
-from dexmots_rl.sim.constants import GEOM_SDF
-from dexmots_rl.sim.hand_kernels import SDF_PAD, build_hand_kernels
-from dexmots_rl.sim.kernel_funcs import build_funcs
-from dexmots_rl.sim.mesh_sdf import sdf_grid
+from dexmots_rl.sim._articulated import ArticulatedSimulator
+from dexmots_rl.sim._constants import GEOM_SDF
+from dexmots_rl.sim._hand_kernels import SDF_PAD, build_hand_kernels
+from dexmots_rl.sim._kernel_funcs import build_funcs
+from dexmots_rl.sim._mesh_sdf import sdf_grid
 
 vec3d, vec4d = wp.types.vector(3, wp.float64), wp.types.vector(4, wp.float64)
 mat33d = wp.types.matrix((3, 3), wp.float64)

@@ -1,4 +1,4 @@
-"""The articulated object tree (sim/object_sim.py) against MuJoCo, on the table, and its gradients."""
+"""The articulated object tree (sim/_object_sim.py) against MuJoCo, on the table, and its gradients."""
 
 import numpy as np
 import pytest

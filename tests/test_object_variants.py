@@ -1,4 +1,4 @@
-"""Object variants: one scene of K objects of one topology, each world simulating its own (sim/object_variants.py)."""
+"""Object variants: one scene of K objects of one topology, each world simulating its own (sim/_object_variants.py)."""
 
 import tempfile
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""RGB observations: the warp ray caster (sim/render.py) and the RGBObservation transform (envs/pixels.py)."""
+"""RGB observations: the warp ray caster (sim/_render.py) and the RGBObservation transform (envs/pixels.py)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from dexmots_rl.assets import asset_path
 from dexmots_rl.envs import make_env
 from dexmots_rl.envs.pixels import RGBObservation, tile_images
 from dexmots_rl.sim import load_scene
-from dexmots_rl.sim.render import LABEL_FLOOR, LABEL_HAND, LABEL_OBJECT, Renderer, _link_capsules, reach_spheres
+from dexmots_rl.sim._render import LABEL_FLOOR, LABEL_HAND, LABEL_OBJECT, Renderer, _link_capsules, reach_spheres
 from simutil import CLAW_OPEN_Q, batch_state
 
 H = W = 48

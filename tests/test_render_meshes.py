@@ -1,4 +1,4 @@
-"""RGB images of task operate: the mesh ray caster (sim/mesh_render.py) on one object of every library class."""
+"""RGB images of task operate: the mesh ray caster (sim/_mesh_render.py) on one object of every library class."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from dexmots_rl.assets.objects import list_objects
 from dexmots_rl.envs import make_env
 from dexmots_rl.envs.tasks.allegro.operate_object import build_scene
 from dexmots_rl.sim import LABEL_TABLE, ArticulatedSimulator, MeshRenderer, Renderer, make_renderer
-from dexmots_rl.sim.mesh_render import FIRST_BODY_LABEL
+from dexmots_rl.sim._mesh_render import FIRST_BODY_LABEL
 
 H = W = 48
 FIRST_OF_CLASS = list({cls: name for name, cls in reversed(list_objects())}.values())
@@ -106,7 +106,7 @@ def test_make_env_operate_obs_rgb():
 
 @pytest.mark.slow  # CUDA code generation of the mesh renderer
 def test_mesh_renderer_compiles_to_ptx_without_a_gpu():
-    from dexmots_rl.sim.aot import compile_mesh_renderer
+    from dexmots_rl.sim._aot import compile_mesh_renderer
 
     row = compile_mesh_renderer("cuda", arch=90)
     assert row["ok"], row.get("error")

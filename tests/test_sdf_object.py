@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dexmots_rl.sim import Simulator, load_scene
-from dexmots_rl.sim.constants import GEOM_SDF
+from dexmots_rl.sim._constants import GEOM_SDF
 
 ASSET = Path(__file__).parent / "assets" / "u_block.xml"
 

@@ -33,25 +33,25 @@ if os.environ.get("DEXMOTS_VERIFY_AUTOGRAD"):
     wp.config.verify_autograd_array_access = True
 
 # scenes
-from .model import AssetError, ContactParams, SceneModel, load_scene  # noqa: E402
-from .articulated_scene import ArticulatedScene  # noqa: E402
-from .object_model import HINGE, SLIDE, ObjectTree, joint_param_names  # noqa: E402
-from .object_variants import load_variants  # noqa: E402
-from .object_sim import TableContact, load_object_tree  # noqa: E402
+from ._model import AssetError, ContactParams, SceneModel, load_scene  # noqa: E402
+from ._articulated_scene import ArticulatedScene  # noqa: E402
+from ._object_model import HINGE, SLIDE, ObjectTree, joint_param_names  # noqa: E402
+from ._object_variants import load_variants  # noqa: E402
+from ._object_sim import TableContact, load_object_tree  # noqa: E402
 # simulators and their step
-from .hand_sim import Control, HandSimulator, SimStep, StepOutput, TapeTrajectory, check_device  # noqa: E402
-from .simulator import Simulator  # noqa: E402
-from .articulated import ArticulatedSimulator, ArticulatedStepOutput  # noqa: E402
-from .object_sim import ObjectSimulator  # noqa: E402
-from .factory import make_simulator  # noqa: E402
-from .stepper import Trajectory, cpu_threads  # noqa: E402
+from ._hand_sim import Control, HandSimulator, SimStep, StepOutput, TapeTrajectory, check_device  # noqa: E402
+from ._simulator import Simulator  # noqa: E402
+from ._articulated import ArticulatedSimulator, ArticulatedStepOutput  # noqa: E402
+from ._object_sim import ObjectSimulator  # noqa: E402
+from ._factory import make_simulator  # noqa: E402
+from ._stepper import Trajectory, cpu_threads  # noqa: E402
 # drawing: images, and the scene's meshes (recordings)
-from .render import Camera, Renderer  # noqa: E402
-from .mesh_render import LABEL_TABLE, MeshRenderer, make_renderer  # noqa: E402
-from .scene_meshes import (GOAL_RGBA, ROLE_RGBA, STATIC, MeshPart, SceneGeometry, box_mesh, quat_to_mat,  # noqa: E402
+from ._render import Camera, Renderer  # noqa: E402
+from ._mesh_render import LABEL_TABLE, MeshRenderer, make_renderer  # noqa: E402
+from ._scene_meshes import (GOAL_RGBA, ROLE_RGBA, STATIC, MeshPart, SceneGeometry, box_mesh, quat_to_mat,  # noqa: E402
                            recorded_body_names, scene_geometry, transform)
 # ahead-of-time compilation
-from .aot import compile_scene, warp_versions  # noqa: E402
+from ._aot import compile_scene, warp_versions  # noqa: E402
 
 __all__ = [
     # scenes

@@ -1,10 +1,10 @@
 """The object's mechanical energy from its state, in torch (an independent check of the kernels' physics).
 
-:func:`tree_kinematics` runs the forward kinematics of an articulated object (sim/object_model.py) from its
+:func:`tree_kinematics` runs the forward kinematics of an articulated object (sim/_object_model.py) from its
 generalized coordinates and velocities; :func:`tree_energy` sums, over every body, the kinetic energy of its
 com's translation and of its rotation about the com, plus gravity's potential, plus each part joint's rotor
 inertia (armature) and spring (``0.5 k (q - rest)^2``). :func:`scene_object_energy` does the same for the
-one-body object of a knob or cube scene (sim/model.py). Neither reads a kernel: what the simulator integrates
+one-body object of a knob or cube scene (sim/_model.py). Neither reads a kernel: what the simulator integrates
 is checked against what these compute (tests/test_articulated.py, benchmarks/energy.py).
 
 Contact and range-stop penalties store some energy too; it is left out (it is small, and any energy a
@@ -12,7 +12,7 @@ contact injects shows up as kinetic or potential energy of the bodies).
 
 Example:
     >>> import torch
-    >>> from dexmots_rl.sim.energy import rotation_about
+    >>> from dexmots_rl.sim._energy import rotation_about
     >>> rotation_about(torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.0])).shape
     torch.Size([1, 3, 3])
 """
@@ -22,8 +22,8 @@ from __future__ import annotations
 import torch
 
 from ..quaternions import quat_to_matrix
-from .model import OBJECT_HINGE, SceneModel
-from .object_model import HINGE, ObjectTree
+from ._model import OBJECT_HINGE, SceneModel
+from ._object_model import HINGE, ObjectTree
 
 __all__ = ["rotation_about", "tree_kinematics", "tree_energy", "scene_object_energy"]
 
@@ -47,7 +47,7 @@ def _mv(R: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 def tree_kinematics(tree: ObjectTree, q: torch.Tensor, qd: torch.Tensor):
     """Every body's origin, rotation (body -> world), com, com velocity and angular velocity (world), each
     ``[N, B, ...]``, from the object's coordinates ``q`` [N, nq] and velocities ``qd`` [N, nv] (the layout of
-    :class:`~dexmots_rl.sim.object_model.ObjectTree`: a free base's position, wxyz quaternion, linear velocity of
+    :class:`~dexmots_rl.sim._object_model.ObjectTree`: a free base's position, wxyz quaternion, linear velocity of
     its origin and angular velocity, then one coordinate per part joint)."""
     n, dtype, dev = q.shape[0], q.dtype, q.device
 

@@ -1,4 +1,4 @@
-"""Warp code of the mesh ray caster in :mod:`.mesh_render`: the scene struct and its kernels.
+"""Warp code of the mesh ray caster in :mod:`._mesh_render`: the scene struct and its kernels.
 
 Forward only (the module is built without adjoints). Every drawn body is one :class:`warp.Mesh` in its own
 frame (built once; its BVH never changes); a pixel's ray is moved into each body's frame and traced against
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .render_kernels import View, shade
+from ._render_kernels import View, shade
 
 __all__ = ["LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL", "MeshScene", "mesh_background_kernel",
            "place_bodies", "mesh_render_kernel"]

@@ -155,7 +155,7 @@ class Trajectory:
         n, s_count, z = sim.num_worlds, sim.substeps, sim._zeros
         self.sim, self.n, self.save = sim, n, save
         rows = (s_count + 1) * n
-        # per-call results the reverse pass replays instead of recomputing (see kernels.py); row = output
+        # per-call results the reverse pass replays instead of recomputing (see _kernels.py); row = output
         # row of the substep. Left empty for gradient-free steps.
         k, scene = sim.kernels, sim.scene
         points = scene.num_hand_dofs * scene.points_per_link

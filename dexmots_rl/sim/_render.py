@@ -1,7 +1,7 @@
 """RGB images of every world from one warp ray-casting kernel (forward only, no gradients): the knob and cube scenes.
 
-A scene with an articulated object (task ``operate``) is drawn from its meshes by :mod:`.mesh_render`
-(:func:`~.mesh_render.make_renderer` picks the renderer of a scene).
+A scene with an articulated object (task ``operate``) is drawn from its meshes by :mod:`._mesh_render`
+(:func:`~._mesh_render.make_renderer` picks the renderer of a scene).
 
 One launch renders all worlds: one thread per pixel per world casts a ray from a fixed pinhole camera
 (per-pixel rays and the floor/sky behind the scene are computed once per camera; a tiny launch per call
@@ -22,13 +22,13 @@ towards the base), the object is blue with a white band, the floor grey. Link an
 does both. Output: ``uint8 [N, H, W, 3]`` (torch owns the memory; warp writes it in place through
 ``wp.from_torch``); optional labels ``uint8 [N, H, W]`` (:data:`LABEL_SKY`, ``_FLOOR``, ``_HAND``,
 ``_OBJECT``). On CPU the pixels are split into one block per core (a warp CPU launch runs on one core).
-The warp code is in :mod:`.render_kernels`.
+The warp code is in :mod:`._render_kernels`.
 
 Example:
     >>> import torch
     >>> from dexmots_rl.assets import asset_path
     >>> from dexmots_rl.sim import Simulator, load_scene
-    >>> from dexmots_rl.sim.render import Renderer
+    >>> from dexmots_rl.sim._render import Renderer
     >>> sim = Simulator(load_scene(asset_path("claw_screw.xml")), num_worlds=2)
     >>> q, _ = sim.initial_state()
     >>> img = Renderer(sim.scene, height=32, width=32).render_state(sim, q)
@@ -45,8 +45,8 @@ import numpy as np
 import torch
 import warp as wp
 
-from .model import HINGE, OBJECT_HINGE, SceneModel
-from .render_kernels import (
+from ._model import HINGE, OBJECT_HINGE, SceneModel
+from ._render_kernels import (
     LABEL_FLOOR,
     LABEL_HAND,
     LABEL_OBJECT,
@@ -57,8 +57,8 @@ from .render_kernels import (
     place_segments,
     render_kernel,
 )
-from .hand_sim import check_device
-from .stepper import cpu_threads, launch_stream, run_blocks
+from ._hand_sim import check_device
+from ._stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["Camera", "Renderer", "default_camera", "framing_camera", "camera_view", "reach_spheres",
            "hand_reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT"]

@@ -1,7 +1,7 @@
 """A hand and an articulated object on a table: scene, simulator and the differentiable step.
 
 :func:`~dexmots_rl.sim.load_scene` returns an :class:`ArticulatedScene` when body ``object`` is a tree (a base
-with moving parts, sim/object_model.py). :class:`ArticulatedSimulator` steps it with the same interface as
+with moving parts, sim/_object_model.py). :class:`ArticulatedSimulator` steps it with the same interface as
 :class:`~dexmots_rl.sim.Simulator` (state ``joint_q``/``joint_qd`` = the hand's joints then the object's
 coordinates, a :class:`~dexmots_rl.sim.Control`, named per-world parameters), so envs use either.
 
@@ -9,9 +9,9 @@ One substep is six launches over all worlds, seven when the palm collides (each 
 part): the object's frames, the table's contact (a thread per world and body), the palm's (the same), the
 fingers' contact (a thread per world and finger sphere), the sum of each body's contacts, the object tree's solve
 and the hand's (a thread per world and finger). The launches are recorded once per trajectory of buffers and
-replayed, their adjoints in reverse for the gradient (sim/articulated_stepper.py).
+replayed, their adjoints in reverse for the gradient (sim/_articulated_stepper.py).
 
-A scene of K object variants (sim/object_variants.py) steps each world's own variant: the per-world parameter
+A scene of K object variants (sim/_object_variants.py) steps each world's own variant: the per-world parameter
 ``"variant"`` (the last column of the packed parameters) picks it; K = 1 has no such parameter.
 """
 
@@ -22,16 +22,16 @@ import numpy as np
 import torch
 import warp as wp
 
-from .articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
-from .articulated_stepper import ArticulatedTrajectory
-from .energy import tree_energy
-from .hand_kernels import build_hand_kernels
-from .object_model import MAX_SAMPLES, SLIDE
-from .palm_object_kernels import build_palm_object_kernels
+from ._articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
+from ._articulated_stepper import ArticulatedTrajectory
+from ._energy import tree_energy
+from ._hand_kernels import build_hand_kernels
+from ._object_model import MAX_SAMPLES, SLIDE
+from ._palm_object_kernels import build_palm_object_kernels
 from ..quaternions import quat_to_matrix
-from .hand_sim import BELOW_TABLE, PAST_STOP_HINGE, PAST_STOP_SLIDE, HandSimulator, StepOutput
-from .model import ContactParams
-from .object_sim import ObjectSimulator, TableContact
+from ._hand_sim import BELOW_TABLE, PAST_STOP_HINGE, PAST_STOP_SLIDE, HandSimulator, StepOutput
+from ._model import ContactParams
+from ._object_sim import ObjectSimulator, TableContact
 
 __all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", "ObjectGeoms", "object_geoms"]
 
@@ -63,9 +63,9 @@ class ArticulatedStepOutput(StepOutput):
 
 class ArticulatedSimulator(HandSimulator):
     """Many worlds of a hand and an articulated object (see the module docstring; the options are
-    :class:`~dexmots_rl.sim.hand_sim.HandSimulator`'s, plus the ``table``'s contact). The object's kernels, model
+    :class:`~dexmots_rl.sim._hand_sim.HandSimulator`'s, plus the ``table``'s contact). The object's kernels, model
     and variants are those of :attr:`object_sim`, the object alone (an
-    :class:`~dexmots_rl.sim.object_sim.ObjectSimulator` of the same worlds); the hand's and the palm's are this
+    :class:`~dexmots_rl.sim._object_sim.ObjectSimulator` of the same worlds); the hand's and the palm's are this
     simulator's own."""
 
     output_type = ArticulatedStepOutput

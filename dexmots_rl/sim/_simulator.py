@@ -2,7 +2,7 @@
 
 Builder -> model -> state/control -> step, as in Newton/Brax: :func:`load_scene` builds the numpy
 :class:`SceneModel`, :class:`Simulator` puts it on a device and owns the kernels, and
-:meth:`Simulator.step` (:class:`~dexmots_rl.sim.hand_sim.HandSimulator`'s) maps ``(joint_q, joint_qd, control,
+:meth:`Simulator.step` (:class:`~dexmots_rl.sim._hand_sim.HandSimulator`'s) maps ``(joint_q, joint_qd, control,
 params)`` tensors to the next state plus observations. The state lives in torch tensors owned by the caller (the env keeps them in its
 TensorDict), so a step is a pure function and SHAC can chain gradients through many of them.
 """
@@ -13,13 +13,13 @@ import numpy as np
 import torch
 import warp as wp
 
-from .constants import GEOM_CONVEX
-from .kernels import build_kernels
-from .mjcf_shapes import MAX_PLANES
-from .energy import scene_object_energy
-from .model import HINGE, OBJECT_FREE, OBJECT_HINGE, ContactParams, SceneModel
-from .hand_sim import PAST_STOP_HINGE, HandSimulator
-from .stepper import Trajectory, launch_stream
+from ._constants import GEOM_CONVEX
+from ._kernels import build_kernels
+from ._mjcf_shapes import MAX_PLANES
+from ._energy import scene_object_energy
+from ._model import HINGE, OBJECT_FREE, OBJECT_HINGE, ContactParams, SceneModel
+from ._hand_sim import PAST_STOP_HINGE, HandSimulator
+from ._stepper import Trajectory, launch_stream
 
 __all__ = ["Simulator"]
 
@@ -59,7 +59,7 @@ def _box_of_planes(planes) -> tuple[np.ndarray, np.ndarray] | None:
 
 class Simulator(HandSimulator):
     """Many worlds of a knob or cube scene on one device; each env step is ``substeps`` kernel launches (the
-    options are :class:`~dexmots_rl.sim.hand_sim.HandSimulator`'s).
+    options are :class:`~dexmots_rl.sim._hand_sim.HandSimulator`'s).
 
     Example:
         >>> import torch
@@ -88,7 +88,7 @@ class Simulator(HandSimulator):
             raise ValueError(f"object has {len(scene.object_planes)} faces; at most {MAX_PLANES} are supported")
         super().__init__(scene, num_worlds, device=device, dtype=dtype, substeps=substeps, dt=dt, contact=contact,
                          adjoint_clip=adjoint_clip)
-        # run each env step's launches as captured graphs (stepper.py): always on CUDA; on CPU the blocks of
+        # run each env step's launches as captured graphs (_stepper.py): always on CUDA; on CPU the blocks of
         # worlds in threads are faster, and setting this before the first step selects the graphs there too
         self.graphs = not self.device.is_cpu
         self.nq = scene.num_hand_dofs + scene.object_nq

@@ -1,18 +1,18 @@
 """The articulated object on its own: many worlds of one object tree on a table, differentiable.
 
-:class:`ObjectSimulator` steps the object of a scene (sim/object_model.py) under gravity, its joints'
+:class:`ObjectSimulator` steps the object of a scene (sim/_object_model.py) under gravity, its joints'
 springs, dampers, friction and stops, the table's contact and an applied wrench per body (the hand's
 contact, or a planner's wrench). A step is ``substeps`` launches of one fused kernel over all worlds;
 with gradients on, the launches are recorded on a ``wp.Tape`` with one set of arrays per substep (a
 taped launch must not overwrite what an earlier one read) and :class:`ObjectStep` replays them backwards.
 
-Object variants (sim/object_variants.py): given ``variants`` (trees of one topology), the model's arrays hold
+Object variants (sim/_object_variants.py): given ``variants`` (trees of one topology), the model's arrays hold
 every variant and world ``w`` simulates variant ``variant[w]`` (:attr:`ObjectSimulator.variant`, int32 [N],
 zeros by default; read at each step).
 
 Example:
     >>> from dexmots_rl.assets.objects import load_object
-    >>> from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
+    >>> from dexmots_rl.sim._object_sim import ObjectSimulator, load_object_tree
     >>> tree, _ = load_object_tree(load_object("spray_bottle_a"))  # doctest: +SKIP
     >>> sim = ObjectSimulator(tree, num_worlds=2)  # doctest: +SKIP
 """
@@ -27,11 +27,11 @@ import torch
 import warp as wp
 from tensordict import TensorDict
 
-from .mjcf_shapes import AssetError
-from .constants import LIMIT_WIDTH
-from .object_kernels import build_object_kernels
-from .object_model import MAX_SAMPLES, ObjectTree, object_tree
-from .hand_sim import check_device
+from ._mjcf_shapes import AssetError
+from ._constants import LIMIT_WIDTH
+from ._object_kernels import build_object_kernels
+from ._object_model import MAX_SAMPLES, ObjectTree, object_tree
+from ._hand_sim import check_device
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
 
@@ -75,7 +75,7 @@ def _wp_dtype(dtype):
 
 class ObjectSimulator:
     """Worlds of one object tree (see the module docstring). State: ``q`` [N, nq], ``qd`` [N, nv]
-    (:class:`~dexmots_rl.sim.object_model.ObjectTree` documents the layout); parameters: the named
+    (:class:`~dexmots_rl.sim._object_model.ObjectTree` documents the layout); parameters: the named
     per-joint values of :attr:`param_names`, each [N, 1]."""
 
     def __init__(self, tree: ObjectTree, num_worlds: int, *, device: str = "cpu", dtype: torch.dtype = torch.float32,

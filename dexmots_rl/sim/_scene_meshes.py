@@ -178,7 +178,7 @@ def _compiled_model(scene, asset=None):
 
 def scene_geometry(scene, asset=None) -> SceneGeometry:
     """The geometry of every body of ``scene`` (a :class:`~dexmots_rl.sim.SceneModel` or an
-    :class:`~dexmots_rl.sim.articulated.ArticulatedScene`), read from the MJCF it was loaded from (or, when that
+    :class:`~dexmots_rl.sim._articulated.ArticulatedScene`), read from the MJCF it was loaded from (or, when that
     file is gone, from the scene of the Allegro hand and the object ``asset``,
     :func:`~dexmots_rl.assets.hand_scene.hand_object_scene_xml`)."""
     import mujoco

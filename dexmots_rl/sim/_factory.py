@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import torch
 
-from .articulated import ArticulatedScene, ArticulatedSimulator
-from .hand_sim import HandSimulator
-from .model import ContactParams, SceneModel
-from .simulator import Simulator
+from ._articulated import ArticulatedScene, ArticulatedSimulator
+from ._hand_sim import HandSimulator
+from ._model import ContactParams, SceneModel
+from ._simulator import Simulator
 
 __all__ = ["make_simulator"]
 

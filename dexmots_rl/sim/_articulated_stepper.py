@@ -1,17 +1,17 @@
-"""Buffers and recorded launches for one env step of an :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`.
+"""Buffers and recorded launches for one env step of an :class:`~dexmots_rl.sim._articulated.ArticulatedSimulator`.
 
-As in sim/stepper.py, every array of an :class:`ArticulatedTrajectory` holds the whole env step: row
+As in sim/_stepper.py, every array of an :class:`ArticulatedTrajectory` holds the whole env step: row
 ``s * N + w`` is world ``w`` at substep ``s`` (the states have ``substeps + 1`` row blocks, the per-substep
 intermediates ``substeps``). Each row is written by one launch of the step, so the arrays are allocated once,
 the launches (and their adjoints, in reverse order) are recorded once with every buffer bound and replayed on
 each use, and the reverse pass reads exactly what the forward one wrote, with no ``wp.Tape``. The only buffers
 that need clearing before a step are the ones the contact kernels add into. Worlds are split into one block per
-CPU core, each block's launches run in a thread of their own (:func:`~dexmots_rl.sim.stepper.run_blocks`); on a
+CPU core, each block's launches run in a thread of their own (:func:`~dexmots_rl.sim._stepper.run_blocks`); on a
 GPU there is one block and each recorded launch replays through ``Launch.launch``.
 
 The reverse pass is mostly the finger contact's adjoint; two things keep it small without changing a result:
 the adjoint launch returns at once for a sphere that touched nothing in the forward pass (the forward launch
-marks the others), and only each body's nearest geom is differentiated (hand_kernels.py).
+marks the others), and only each body's nearest geom is differentiated (_hand_kernels.py).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import dataclasses
 import torch
 import warp as wp
 
-from .stepper import prepared, run_blocks, world_blocks
+from ._stepper import prepared, run_blocks, world_blocks
 
 __all__ = ["ArticulatedTrajectory", "StepArrays"]
 
@@ -197,7 +197,7 @@ class ArticulatedTrajectory:
         run_blocks(lambda lo, hi: [launch() for launch in self._forward_cmds[lo]], self.blocks)
 
     def outputs(self) -> list[torch.Tensor]:
-        """(q, qd, wrench, contact force, pose, tips, joint wrench): :class:`~dexmots_rl.sim.articulated.
+        """(q, qd, wrench, contact force, pose, tips, joint wrench): :class:`~dexmots_rl.sim._articulated.
         ArticulatedStepOutput`."""
         last, sim = self.steps * self.n, self.sim
         return [torch.cat([self.hq[last:], self.oq[last:]], 1), torch.cat([self.hqd[last:], self.oqd[last:]], 1),

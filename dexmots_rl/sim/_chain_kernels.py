@@ -10,7 +10,7 @@ import types
 
 import warp as wp
 
-from .model import HINGE
+from ._model import HINGE
 
 __all__ = ["build_chain"]
 

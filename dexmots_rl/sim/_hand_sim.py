@@ -74,7 +74,7 @@ class StepOutput(tuple):
 
 class TapeTrajectory(Protocol):
     """The buffers and recorded launches of one env step of every world, reusable step after step: what
-    :class:`SimStep` drives (sim/stepper.py's ``Trajectory``, sim/articulated_stepper.py's
+    :class:`SimStep` drives (sim/_stepper.py's ``Trajectory``, sim/_articulated_stepper.py's
     ``ArticulatedTrajectory``)."""
 
     lease: int  # bumped whenever the simulator's pool hands the trajectory out or takes it back
@@ -129,7 +129,7 @@ class HandSimulator:
 
     def __init__(self, scene, num_worlds: int, *, device="cpu", dtype: torch.dtype = torch.float32, substeps: int = 16,
                  dt: float | None = None, contact=None, adjoint_clip: float | None = None):
-        from .model import ContactParams
+        from ._model import ContactParams
 
         if num_worlds <= 0:
             raise ValueError(f"num_worlds must be positive, got {num_worlds}")

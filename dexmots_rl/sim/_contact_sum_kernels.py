@@ -1,6 +1,6 @@
 """Warp kernel summing the contacts on an articulated object's bodies (the table's, the palm's and the hand's), and
 the running means over a step's substeps of the hand's wrench on the whole object, of its normal force and of its
-generalised force on each of the object's joints (sim/object_kernels.py builds it into its kernel set).
+generalised force on each of the object's joints (sim/_object_kernels.py builds it into its kernel set).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time

@@ -24,8 +24,8 @@ import types
 
 import warp as wp
 
-from .constants import CONTACT_CUTOFF
-from .kernel_funcs import build_funcs
+from ._constants import CONTACT_CUTOFF
+from ._kernel_funcs import build_funcs
 
 __all__ = ["build_palm"]
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .mjcf_shapes import (
+from ._mjcf_shapes import (
     AssetError,
     _body_inertia,
     _link_points,
@@ -29,7 +29,7 @@ from .mjcf_shapes import (
     _palm_boxes,
     _quat_to_mat,
 )
-from .object_model import HINGE, SLIDE  # one joint-kind enumeration: the hand's and the object's joints
+from ._object_model import HINGE, SLIDE  # one joint-kind enumeration: the hand's and the object's joints
 
 __all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "load_scene"]
 
@@ -201,8 +201,8 @@ def load_scene(path: str | Path, *, contact: ContactParams | None = None) -> Sce
     hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
     obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
     if is_articulated_scene(m):
-        from .articulated_scene import ArticulatedScene, object_geoms
-        from .object_model import object_tree
+        from ._articulated_scene import ArticulatedScene, object_geoms
+        from ._object_model import object_tree
 
         return ArticulatedScene(path=str(path), hand=hand_fields, tree=object_tree(m, d), geoms=object_geoms(m),
                                 palm=_palm_boxes(m, d, hand, [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]))
@@ -365,7 +365,7 @@ def _hand_chains(m, d, path: Path, contact: ContactParams) -> dict:
 
 def is_articulated_scene(m) -> bool:
     """Whether body ``object`` of the compiled model is an articulated tree (a base with moving parts below it,
-    see :mod:`.object_model`) rather than the single hinged or free body of the knob and cube scenes."""
+    see :mod:`._object_model`) rather than the single hinged or free body of the knob and cube scenes."""
     import mujoco
 
     obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")

@@ -1,8 +1,8 @@
 """The scene of a hand and an articulated object: the hand's fields, the object tree and its collision geoms.
 
 :func:`~dexmots_rl.sim.load_scene` builds an :class:`ArticulatedScene` when body ``object`` of an MJCF is a tree
-(a base with moving parts, :mod:`.object_model`); :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`
-simulates it. :func:`~dexmots_rl.sim.object_variants.load_variants` builds one from several MJCF files of the
+(a base with moving parts, :mod:`._object_model`); :class:`~dexmots_rl.sim._articulated.ArticulatedSimulator`
+simulates it. :func:`~dexmots_rl.sim._object_variants.load_variants` builds one from several MJCF files of the
 same hand with objects of one topology (the object's variants; each world simulates one).
 """
 
@@ -12,11 +12,11 @@ import dataclasses
 
 import numpy as np
 
-from .constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE
-from .hand_kernels import SDF_PAD
-from .mesh_sdf import sdf_grid
-from .mjcf_shapes import AssetError, _quat_to_mat
-from .object_model import ObjectTree
+from ._constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE
+from ._hand_kernels import SDF_PAD
+from ._mesh_sdf import sdf_grid
+from ._mjcf_shapes import AssetError, _quat_to_mat
+from ._object_model import ObjectTree
 
 __all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
 
@@ -26,7 +26,7 @@ class ObjectGeoms:
     """The object's collision geoms for finger contact, per body (``[B, G]``, G the most any body has):
     kind (GEOM_*; GEOM_NONE pads), centre (m) and rotation in the body frame, sizes (m: box half sizes; sphere
     radius; capsule and cylinder radius and half length). A mesh geom (GEOM_SDF) collides through the signed
-    distance of its watertight mesh sampled on a grid (sim/mesh_sdf.py): its frame is centred on the grid's box,
+    distance of its watertight mesh sampled on a grid (sim/_mesh_sdf.py): its frame is centred on the grid's box,
     its size the box's half sizes, ``grid`` [B, G, 4] (first index in ``sdf_values``, points along x, y, z),
     ``sdf_values`` every grid (m, negative inside) flattened x-major, one after another."""
 
@@ -135,7 +135,7 @@ class ArticulatedScene:
     world frame, of the palm's boxes that collide with the object (none: the palm is drawn only).
 
     ``variant_trees``, ``variant_geoms``, ``variant_paths``: the object's variants (K of one topology, from one
-    file each; :mod:`.object_variants`); ``tree``, ``geoms`` and ``path`` are variant 0's. One file: K = 1."""
+    file each; :mod:`._object_variants`); ``tree``, ``geoms`` and ``path`` are variant 0's. One file: K = 1."""
 
     path: str
     hand: dict

@@ -11,7 +11,7 @@ The reverse pass is warp's generated adjoint, made cheap in three ways (docs/dev
 step saves each function call's result (``Saved``) and ``wp.func_replay`` loads it instead of re-running
 the call at every nesting level; model constants are read through loads with an empty adjoint, so the
 compiler drops the adjoint terms that would only flow into the model; the contact functions
-(contact_kernels.py) and a link's inertia block (chain_kernels.py) have hand-written adjoints.
+(_contact_kernels.py) and a link's inertia block (_chain_kernels.py) have hand-written adjoints.
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -23,12 +23,12 @@ import types
 
 import warp as wp
 
-from .chain_kernels import build_chain
-from .contact_kernels import build_contact
-from .palm_kernels import build_palm
-from .constants import LIMIT_WIDTH
-from .kernel_funcs import build_funcs
-from .model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
+from ._chain_kernels import build_chain
+from ._contact_kernels import build_contact
+from ._palm_kernels import build_palm
+from ._constants import LIMIT_WIDTH
+from ._kernel_funcs import build_funcs
+from ._model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
 __all__ = ["build_kernels"]
 
@@ -76,7 +76,7 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
 
     ``hinges_only``: every hand joint is revolute, so joint-type branches are resolved at build time
     (fewer instructions forward and, above all, in the generated adjoint). ``palm_boxes``,
-    ``palm_points``: palm collision boxes and object surface samples (palm_kernels.py; free objects only);
+    ``palm_points``: palm collision boxes and object surface samples (_palm_kernels.py; free objects only);
     with none, the palm's fields and code are left out entirely.
     ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out).
     ``box_object``: the convex object's faces are the six of an axis-aligned box (object frame), so the

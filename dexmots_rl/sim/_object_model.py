@@ -26,7 +26,7 @@ import dataclasses
 
 import numpy as np
 
-from .mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
+from ._mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 
 __all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
            "SLIDE"]

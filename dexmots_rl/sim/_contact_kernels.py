@@ -13,9 +13,9 @@ import types
 
 import warp as wp
 
-from .constants import CONTACT_CUTOFF, GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE, LSE_CUTOFF
-from .kernel_funcs import build_funcs
-from .model import HINGE
+from ._constants import CONTACT_CUTOFF, GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE, LSE_CUTOFF
+from ._kernel_funcs import build_funcs
+from ._model import HINGE
 
 __all__ = ["build_contact"]
 
@@ -191,7 +191,7 @@ def build_contact(t) -> types.SimpleNamespace:
     # Replays: warp's adjoint of a function first re-runs the function's forward to get its
     # intermediates, and the adjoint of a caller re-runs its callees too, so a function nested d deep
     # ran d + 1 times in the reverse pass. A taped forward saves each call's result; the replays here
-    # and in kernels.py load it, so every function body runs once more in reverse (in its own adjoint).
+    # and in _kernels.py load it, so every function body runs once more in reverse (in its own adjoint).
     @wp.func_replay(object_sdf)
     def replay_object_sdf(m: Model, p: vec3, saved: Saved, row: int, slot: int):
         return saved.sdf[row, slot]

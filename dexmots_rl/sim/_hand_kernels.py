@@ -1,6 +1,6 @@
 """Warp kernels of the hand in an articulated-object scene: finger chains, and their contact with the object.
 
-Two kernels per substep (sim/articulated.py runs them around the object tree's, sim/object_kernels.py):
+Two kernels per substep (sim/_articulated.py runs them around the object tree's, sim/_object_kernels.py):
 
 * ``finger_contact``, a thread per world and finger link: the link's frame through its finger chain (once for its
   sample spheres), then for each of the link's spheres its pose and velocity, its signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule,
@@ -22,9 +22,9 @@ import functools
 
 import warp as wp
 
-from .constants import (CONTACT_CUTOFF, GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF,
+from ._constants import (CONTACT_CUTOFF, GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF,
                         GEOM_SPHERE, LIMIT_WIDTH)
-from .kernel_funcs import build_funcs
+from ._kernel_funcs import build_funcs
 
 __all__ = ["build_hand_kernels", "SDF_PAD"]
 
@@ -82,7 +82,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         point_pos: wp.array(dtype=vec3)  # [F*J*P] m, link frame
         point_radius: wp.array(dtype=dtype)  # [F*J*P] m (0: padding)
         tip_pos: wp.array(dtype=vec3)  # [F] m, last link's frame
-        # the object's geoms: V object variants (sim/object_variants.py), world w reads variant[w]'s
+        # the object's geoms: V object variants (sim/_object_variants.py), world w reads variant[w]'s
         geom_kind: wp.array3d(dtype=wp.int32)  # [V, B, G] GEOM_* (GEOM_NONE: padding)
         geom_pos: wp.array3d(dtype=vec3)  # [V, B, G] m, body frame
         geom_rot: wp.array3d(dtype=mat33)  # [V, B, G] geom -> body

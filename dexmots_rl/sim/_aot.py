@@ -114,8 +114,8 @@ def compile_scene(scene, *, device: str = "cuda", arch: int | None = 90, dtypes=
     of ``dtypes`` with the contact law ``contact`` and, with ``render``, the kernels of the renderer that draws it
     (:func:`~dexmots_rl.sim.make_renderer`'s); :func:`compile_kernels`' rows, each with its ``dtype``
     (``"float32"``...)."""
-    from .articulated_scene import ArticulatedScene
-    from .factory import make_simulator
+    from ._articulated_scene import ArticulatedScene
+    from ._factory import make_simulator
 
     rows = []
     for dtype in dtypes:
@@ -132,7 +132,7 @@ def compile_scene(scene, *, device: str = "cuda", arch: int | None = 90, dtypes=
 def compile_renderer(device: str = "cuda", arch: int | None = 90) -> dict:
     """Compile the analytic renderer's kernels (one module, the same for every knob and cube scene); a row as
     :func:`compile_kernels`'s."""
-    from . import render_kernels
+    from . import _render_kernels as render_kernels
 
     return _compile_kernel_module(render_kernels, device, arch)
 
@@ -140,7 +140,7 @@ def compile_renderer(device: str = "cuda", arch: int | None = 90) -> dict:
 def compile_mesh_renderer(device: str = "cuda", arch: int | None = 90) -> dict:
     """Compile the mesh renderer's kernels (one module, the same for every articulated-object scene); a row as
     :func:`compile_kernels`'s."""
-    from . import render_mesh_kernels
+    from . import _render_mesh_kernels as render_mesh_kernels
 
     return _compile_kernel_module(render_mesh_kernels, device, arch)
 

@@ -7,7 +7,7 @@ damping, its friction's smoothing, and the mobility the damping is integrated ag
 C1 penalty and its slope), ``joint_friction`` (smoothed Coulomb friction), ``write_pose`` (a body's pose as 7 floats),
 ``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
 interpolant and its gradient) and ``grid_distance`` (signed distance and normal from a mesh's grid,
-sim/mesh_sdf.py).
+sim/_mesh_sdf.py).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -17,7 +17,7 @@ import types
 
 import warp as wp
 
-from .constants import FRICTION_VELOCITY
+from ._constants import FRICTION_VELOCITY
 
 __all__ = ["build_funcs"]
 

@@ -1,8 +1,8 @@
-"""Warp kernels of the articulated object (sim/object_model.py): one substep of the object tree per world.
+"""Warp kernels of the articulated object (sim/_object_model.py): one substep of the object tree per world.
 
 One thread per world: the bodies' kinematics (base, then each part through its hinge or slide), the
 table's contact on each body's surface samples (and the sum of each body's contacts,
-sim/contact_sum_kernels.py), the tree's mass matrix and bias forces (a sum over bodies of
+sim/_contact_sum_kernels.py), the tree's mass matrix and bias forces (a sum over bodies of
 J^T M J and J^T (inertial - applied) wrenches, with J each body's com/angular velocity Jacobian), the joint
 springs, dampers, Coulomb friction and range stops, and a linearly implicit solve: joint damping, springs and
 stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity).
@@ -13,7 +13,7 @@ velocity (world frame), then the joint velocities. The solve is block eliminatio
 base rotation (3), joints (P)], with warp's 3x3 and P x P inverses (P <= 4). Everything is generic in the
 float type (float64 for gradient checks); loops have compile-time trip counts, so warp's adjoint is exact.
 
-The model holds every object variant of a scene (sim/object_variants.py): the arrays that may differ between
+The model holds every object variant of a scene (sim/_object_variants.py): the arrays that may differ between
 variants have a leading variant dimension, and each kernel reads the row of its world's ``variant[w]``.
 """
 
@@ -24,9 +24,9 @@ import functools
 
 import warp as wp
 
-from .constants import CONTACT_CUTOFF
-from .contact_sum_kernels import build_sum_contacts
-from .kernel_funcs import build_funcs
+from ._constants import CONTACT_CUTOFF
+from ._contact_sum_kernels import build_sum_contacts
+from ._kernel_funcs import build_funcs
 
 __all__ = ["build_object_kernels"]
 
@@ -66,7 +66,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
     mat3P = wp.types.matrix((3, NPV), dtype)
     matPP = wp.types.matrix((NPV, NPV), dtype)
 
-    # the leading V of an array is the object variant (sim/object_variants.py): a world reads variant[w]'s row;
+    # the leading V of an array is the object variant (sim/_object_variants.py): a world reads variant[w]'s row;
     # the topology (parent, joint kinds, ancestor) is every variant's
     @wp.struct
     class Model:

@@ -2,7 +2,7 @@
 
 :func:`load_variants` reads K MJCF files of the same hand with different objects (say the sizes of one class
 drawn K times, or several library instances of a class) into one
-:class:`~dexmots_rl.sim.articulated_scene.ArticulatedScene`. The variants must share the object's topology:
+:class:`~dexmots_rl.sim._articulated_scene.ArticulatedScene`. The variants must share the object's topology:
 a fixed or free base, the number of bodies, each body's parent, the joints' names and kinds, and whether there
 is a table; their geometry, joint axes, anchors and ranges, masses, inertias, table-contact samples, collision
 geoms, table height and initial pose may differ. The hand (every field the hand's kernels read, and the palm's
@@ -10,15 +10,15 @@ boxes) must be the same in every file. A mismatch raises :class:`~dexmots_rl.sim
 and the field.
 
 The kernels' model structs hold every variant (a leading dimension V on the arrays that may differ:
-sim/object_kernels.py, sim/hand_kernels.py, sim/palm_object_kernels.py), and every launch reads ``variant[w]``
-(int32 [N]). In :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator` the variant of each world is the
+sim/_object_kernels.py, sim/_hand_kernels.py, sim/_palm_object_kernels.py), and every launch reads ``variant[w]``
+(int32 [N]). In :class:`~dexmots_rl.sim._articulated.ArticulatedSimulator` the variant of each world is the
 per-world parameter ``"variant"`` (in ``scene.param_names`` when K > 1, a whole number in [0, K) carried as
 a float like the other parameters, no gradient): it is set with the other parameters at reset (partial
 resets included), and defaults to 0 (:meth:`~dexmots_rl.sim.ArticulatedScene.default_param_values`). With
 K = 1 there is no such parameter and every world reads row 0: the step is the one of a single-object scene.
 
 Example:
-    >>> from dexmots_rl.sim.object_variants import load_variants
+    >>> from dexmots_rl.sim._object_variants import load_variants
     >>> scene = load_variants(["bottle_a.xml", "bottle_b.xml"])  # doctest: +SKIP
     >>> scene.num_variants, scene.param_names[-1]  # doctest: +SKIP
     (2, 'variant')
@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .articulated_scene import ArticulatedScene, ObjectGeoms
-from .constants import GEOM_NONE
-from .mjcf_shapes import AssetError
-from .object_model import ObjectTree
+from ._articulated_scene import ArticulatedScene, ObjectGeoms
+from ._constants import GEOM_NONE
+from ._mjcf_shapes import AssetError
+from ._object_model import ObjectTree
 
 __all__ = ["load_variants", "check_same_topology", "pad_geoms"]
 
@@ -91,7 +91,7 @@ def pad_geoms(geoms: ObjectGeoms, width: int) -> ObjectGeoms:
 def load_variants(paths, *, contact=None) -> ArticulatedScene:
     """One :class:`ArticulatedScene` of the K objects of ``paths`` (MJCF files of the same hand; see the module
     docstring); variant k is ``paths[k]``. One path gives the scene :func:`~dexmots_rl.sim.load_scene` does."""
-    from .model import load_scene
+    from ._model import load_scene
 
     paths = [Path(p) for p in paths]
     if not paths:

@@ -1,6 +1,6 @@
 """RGB images of every world of a hand-and-articulated-object scene, ray cast against each body's mesh.
 
-:class:`MeshRenderer` draws what :func:`~dexmots_rl.sim.scene_meshes.scene_geometry` reads from the scene's MJCF
+:class:`MeshRenderer` draws what :func:`~dexmots_rl.sim._scene_meshes.scene_geometry` reads from the scene's MJCF
 (what the viewer draws too): every hand link and the palm with their geoms, every object part with its
 watertight visual mesh (the object library's ``group="1"`` meshes; a part without one with its collision
 primitives), and the table. Each drawn body is one :class:`warp.Mesh` in its own frame, built once; the table is
@@ -15,7 +15,7 @@ with one directional light plus ambient, flat per triangle. Output: ``uint8 [N, 
 ``uint8 [N, H, W]``: :data:`LABEL_SKY`, :data:`LABEL_TABLE`, then ``FIRST_BODY_LABEL + k`` for drawn body
 ``k`` (its name and role are ``body_names[k]``, ``body_roles[k]``; :meth:`MeshRenderer.label`).
 
-:func:`make_renderer` picks this renderer for an articulated scene and :class:`~.render.Renderer` (analytic
+:func:`make_renderer` picks this renderer for an articulated scene and :class:`~._render.Renderer` (analytic
 shapes) for the knob and cube scenes.
 
 Example:
@@ -40,13 +40,13 @@ import numpy as np
 import torch
 import warp as wp
 
-from .articulated_scene import ArticulatedScene
-from .render import Camera, Renderer, camera_view, framing_camera, hand_reach_spheres
-from .render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
+from ._articulated_scene import ArticulatedScene
+from ._render import Camera, Renderer, camera_view, framing_camera, hand_reach_spheres
+from ._render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
                                   mesh_render_kernel, place_bodies)
-from .scene_meshes import STATIC, SceneGeometry, scene_geometry
-from .hand_sim import check_device
-from .stepper import cpu_threads, launch_stream, run_blocks
+from ._scene_meshes import STATIC, SceneGeometry, scene_geometry
+from ._hand_sim import check_device
+from ._stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["MeshRenderer", "make_renderer", "framing_spheres", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE",
            "FIRST_BODY_LABEL"]
@@ -60,7 +60,7 @@ MIN_PIXELS_PER_THREAD = 4096  # below this a second CPU thread costs more than i
 def make_renderer(scene, *, height: int = 64, width: int = 64, camera: Camera | None = None,
                   device: str | torch.device = "cpu", asset=None):
     """The renderer of ``scene``: a :class:`MeshRenderer` for an articulated-object scene (``asset``: its object,
-    used when the scene's MJCF file is gone), else a :class:`~.render.Renderer`."""
+    used when the scene's MJCF file is gone), else a :class:`~._render.Renderer`."""
     if isinstance(scene, ArticulatedScene):
         return MeshRenderer(scene, height, width, camera=camera, device=device, asset=asset)
     return Renderer(scene, height, width, camera=camera, device=device)
@@ -217,7 +217,7 @@ class MeshRenderer:
 
     def render_state(self, sim, joint_q: torch.Tensor, labels: bool = False):
         """Render states ``joint_q [N, nq]`` of ``sim`` (an
-        :class:`~dexmots_rl.sim.articulated.ArticulatedSimulator`)."""
+        :class:`~dexmots_rl.sim._articulated.ArticulatedSimulator`)."""
         pose, _ = sim.observe(joint_q.detach())
         return self.render(pose, labels=labels)
 

@@ -1,7 +1,7 @@
 """Warp kernel of the palm's contact with an articulated object's bodies.
 
 The hand is fixed-mount, so its palm is a few boxes fixed in the world (body ``hand``'s colliding box geoms).
-A thread per world and object body tests the body's surface samples (sim/object_model.py) against each box: a
+A thread per world and object body tests the body's surface samples (sim/_object_model.py) against each box: a
 relaxed penalty along the box's outward normal with Hunt-Crossley damping and smoothed Coulomb friction, its
 stiffness, damping and friction handed to the object's solve as matrices at the body's com (linearly implicit,
 as the table's contact). Like the table, the palm only pushes the object; the hand feels nothing back (it is
@@ -15,8 +15,8 @@ import functools
 
 import warp as wp
 
-from .constants import CONTACT_CUTOFF
-from .kernel_funcs import build_funcs
+from ._constants import CONTACT_CUTOFF
+from ._kernel_funcs import build_funcs
 
 __all__ = ["build_palm_object_kernels"]
 

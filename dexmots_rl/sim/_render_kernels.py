@@ -1,4 +1,4 @@
-"""Warp code of the ray caster in :mod:`.render`: scene/camera structs, ray-shape intersections, kernels.
+"""Warp code of the ray caster in :mod:`._render`: scene/camera structs, ray-shape intersections, kernels.
 
 Forward only (the module is built without adjoints). All kernels live in this one warp module, compiled
 once (a few seconds, cached on disk) and shared by every scene: the object shape, plane count and
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
+from ._constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
 
 __all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
            "background_kernel", "render_kernel"]

@@ -1,13 +1,13 @@
 """Reading geometry out of a compiled MuJoCo model: link contact spheres, the object's collision shape
-(convex planes, sphere, cylinder or a signed-distance grid, sim/mesh_sdf.py), palm and object-base
-boxes, the object's surface samples. :func:`dexmots_rl.sim.model.load_scene` assembles the scene from these.
+(convex planes, sphere, cylinder or a signed-distance grid, sim/_mesh_sdf.py), palm and object-base
+boxes, the object's surface samples. :func:`dexmots_rl.sim._model.load_scene` assembles the scene from these.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE
+from ._constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE
 
 __all__ = ["AssetError", "MAX_PLANES"]
 
@@ -61,7 +61,7 @@ def _link_points(m, b: int, per_capsule: int) -> list[tuple[np.ndarray, float]]:
 def _sdf_grid(mesh, pad: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Signed distance (negative inside) sampled on a regular grid around ``mesh`` (trimesh), its longest axis
     :data:`SDF_RESOLUTION` points."""
-    from .mesh_sdf import sdf_grid
+    from ._mesh_sdf import sdf_grid
 
     cell = float((np.ptp(mesh.bounds, 0) + 2 * pad).max() / (SDF_RESOLUTION - 1))
     return sdf_grid(mesh.vertices, mesh.faces, pad, cell)
