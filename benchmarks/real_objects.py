@@ -33,7 +33,7 @@ REST_LIMIT_MM = 1.0
 
 def rest(asset, seconds: float) -> dict:
     """The object alone on the table for ``seconds``: its base's largest shift (mm) and joints' motion."""
-    from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
+    from dexmots_rl.sim import ObjectSimulator, load_object_tree
 
     tree, _ = load_object_tree(asset)
     sim = ObjectSimulator(tree, 1)

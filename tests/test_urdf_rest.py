@@ -13,7 +13,7 @@ import torch
 
 import partnet_fixtures as fx
 from dexmots_rl.assets.objects.urdf import load_urdf
-from dexmots_rl.sim.object_sim import ObjectSimulator, load_object_tree
+from dexmots_rl.sim import ObjectSimulator, load_object_tree
 
 # objects that stand on a table (the scissors' empty base, the knob and the keyboard are fixed-base fixtures)
 FIXTURES = ["stapler", "drawer", "lever_on_fixed_chain", "wall_switch", "cabinet", "screw_cap"]
