@@ -271,8 +271,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     from ``hint``; the others keep ``free_pose``. ``progress``: show the search's stages (tqdm)."""
     import mujoco
     import torch
-    from tqdm.auto import tqdm
-
+    from ..progress import progress_bar
     from ..sim import make_simulator
 
     model = mujoco.MjModel.from_xml_path(str(scene.path))
@@ -283,7 +282,7 @@ def find_object_pregrasps(scene, asset, regions, hint=OPERATE_HINT, free_pose=FR
     rng = np.random.default_rng(seed)
     mujoco.mj_forward(model, data)
     poses = np.zeros((candidates, nu))
-    bar = tqdm(total=candidates + settle_steps + 1, desc=f"pre-grasps of {asset.name}", disable=not progress)
+    bar = progress_bar(total=candidates + settle_steps + 1, desc=f"pre-grasps of {asset.name}", disable=not progress)
     for c in range(candidates):
         bar.update()
         q = model.qpos0.copy()
