@@ -33,7 +33,7 @@ def _pressing(sim, name: str, fingers: str, curl: float = 0.4):
 # (object, fingers, spring stiffness, spring rest, steps, expected sign): the index pulls the spray bottle's
 # trigger up its hinge (free base), the curling fingers push the fixed drawer's handle in along its slide
 EQUILIBRIA = [pytest.param(*case, marks=pytest.mark.slow)  # the tool scenes' float64 builds
-              for case in (("spray_bottle_a", "index", 0.5, 0.0, 20, 1.0), ("drawer_a", "all", 500.0, 0.04, 40, -1.0))]
+              for case in (("spray_bottle_a", "index", 0.5, 0.0, 20, 1.0), ("drawer_a", "all", 500.0, 0.04, 60, -1.0))]
 
 
 @pytest.mark.parametrize("name, fingers, stiffness, rest, steps, sign", EQUILIBRIA)
@@ -51,13 +51,17 @@ def test_joint_wrench_balances_the_spring_at_rest(name, fingers, stiffness, rest
     params[f"{joint}/stiffness"].fill_(stiffness)
     params[f"{joint}/rest"].fill_(rest)
     with torch.no_grad():
-        for _ in range(steps):
+        for step in range(steps):
             out = sim.step(q, qd, ctrl, params)
             q, qd = out.joint_q, out.joint_qd
+            if step == steps - 11:
+                earlier = q[:, -1].clone()
     lo, hi = scene.tree.joint_range[0]
     angle = q[:, -1]
     assert ((angle > lo + 0.1 * (hi - lo)) & (angle < hi - 0.1 * (hi - lo))).all()  # off the stops
-    assert (qd[:, -1].abs() < 0.05 * (hi - lo)).all()  # at rest
+    # at rest: the part stays within 1 % of its range over the last 10 steps (its velocity under twelve pressing
+    # fingers dithers by ~1 cm/s about zero, so the position, not one step's velocity, tells rest)
+    assert ((angle - earlier).abs() < 0.01 * (hi - lo)).all()
     spring = stiffness * (angle - rest)
     pushed = out.joint_wrench[:, 0]
     assert out.joint_wrench.shape == (2, 1)
