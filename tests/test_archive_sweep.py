@@ -68,6 +68,17 @@ def test_the_committed_results_name_no_machine_path(path):
     assert run_dirs and all(d.startswith("runs/") for d in run_dirs), path
 
 
+def test_no_committed_result_or_doc_holds_a_path_of_the_machine_that_made_it():
+    """Archived runs (config.yaml, metrics.json), tables and docs name run directories relative to their sweep."""
+    import re
+
+    pattern = re.compile(r"(?<![\w.])/(?:work|tmp|root|home)/")
+    files = [p for folder in ("results", "docs") for p in (ROOT / folder).rglob("*")
+             if p.suffix in (".json", ".yaml", ".csv", ".md") and p.is_file()]
+    hits = [str(p.relative_to(ROOT)) for p in files if pattern.search(p.read_text(errors="replace"))]
+    assert files and not hits, hits[:5]
+
+
 def test_archived_runs_under_results_are_not_ignored_by_git():
     """results/<sweep>/runs/ holds the archived runs: git must keep them (every other runs/ folder is ignored)."""
     if shutil.which("git") is None or not (ROOT / ".git").exists():
