@@ -28,7 +28,6 @@ Example:
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
@@ -42,6 +41,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from ..envs import ScriptedPolicy, make_env, task_config
 from ..envs.config import override_config
 from ..envs.fields import check_value, rule
+from ._cli import printed_help
 from ._policies import POLICIES, choose_policy
 
 __all__ = ["RECORD_FIELDS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
@@ -167,9 +167,7 @@ def run(argv: list[str] | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    if argv is None and any(a in ("-h", "--help") for a in sys.argv[1:]):
-        argparse.ArgumentParser(prog="dexmots-record", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter).print_help()
+    if printed_help("dexmots-record", __doc__, argv):
         return
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     try:

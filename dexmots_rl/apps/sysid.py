@@ -20,13 +20,12 @@ number, the unidentifiable parameters and the replay errors; the report folder h
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
 from pathlib import Path
 
-from ._cli import errors_as_one_line
+from ._cli import errors_as_one_line, printed_help
 
 __all__ = ["DEFAULTS", "parse_overrides", "run", "main"]
 
@@ -108,9 +107,7 @@ def run(argv: list[str] | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    if argv is None and any(a in ("-h", "--help") for a in sys.argv[1:]):
-        argparse.ArgumentParser(prog="dexmots-sysid", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter).print_help()
+    if printed_help("dexmots-sysid", __doc__, argv):
         return
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     print(json.dumps(run(argv)))
