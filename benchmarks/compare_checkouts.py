@@ -45,7 +45,7 @@ def worker(tasks, out_path: str) -> None:
                 kept[name].append(td[key].clone())
             td = td["next"]
         rollouts[task] = {name: torch.stack(values) for name, values in kept.items()}
-        if task not in bench_tasks():  # a tool task: its speed is benchmarks/articulated_check.py's
+        if task not in bench_tasks():  # a tool task: its speed is dexmots-bench throughput --task <task>
             continue
         bench = SimBench(*load_task_scene(task)[:1], bench_task(task), 256, "cpu", 16, 20, 16, "state",
                          task_contact(task))

@@ -5,9 +5,9 @@
 #   scripts/gpu_check.sh                        # writes gpu_check_<UTC time>.json in the repository root
 #   scripts/gpu_check.sh --out /tmp/h200.json   # any `dexmots-bench gpu` option (dexmots-bench gpu --help)
 #
-# GPU, driver and warp versions; throughput on screw_claw, allegro_rotate and repose_cube at 1,024 / 4,096 /
-# 16,384 worlds (forward, forward+backward, torchrl rollout and Collector, RGB 64x64 at 4,096 worlds); AD
-# against finite differences in float64 on the GPU; CPU/GPU agreement over 100 steps; screw_claw trained with
+# GPU, driver and warp versions; throughput on screw_claw, allegro_rotate, repose_cube and a tool task
+# (spray_bottle) at 1,024 / 4,096 / 16,384 worlds (forward, forward+backward, torchrl rollout and Collector,
+# RGB 64x64 at 4,096 worlds); AD against finite differences in float64 on the GPU; CPU/GPU agreement over 100 steps; screw_claw trained with
 # AHAC at 1,024 worlds for 3 minutes, then evaluated. The JSON is rewritten after each section, so a run
 # cut short keeps what it measured. The same run on CPU at tiny sizes is in the test suite
 # (tests/test_gpu_check.py). Environment: PYTHON (default .venv/bin/python, else python3), GPU_CHECK_TIMEOUT

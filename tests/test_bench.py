@@ -11,15 +11,44 @@ from dexmots_rl.apps.bench import build_parser, format_table, run
 from dexmots_rl.envs import list_tasks
 
 
-def test_throughput_bench_reports_every_rate_in_contact():
-    result = run(["throughput", "--task", "screw_claw", "--num-envs", "2", "--min-time", "0.05",
+RATES = ("fwd", "fwdbwd", "mujoco")
+
+
+@pytest.mark.parametrize("task", ["screw_claw", "spray_bottle"])  # a knob scene and a tool scene
+def test_throughput_bench_reports_every_rate_in_contact(task):
+    result = run(["throughput", "--task", task, "--num-envs", "2", "--min-time", "0.05",
                   "--settle-steps", "20", "--chunk-steps", "2", "--quiet"])
     (row,) = result["rows"]
+    assert result["task"] == task and result["threads"] >= 1 and result["mujoco_threads"] >= 1
     assert row["num_envs"] == 2 and row["contact_fraction"] == 1.0 and row["mujoco_contact_fraction"] == 1.0
-    for key in ("fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s", "taped_fwd_ms", "reverse_ms"):
+    for key in [f"{r}_steps_per_{clock}" for r in RATES for clock in ("s", "cpu_s")] + ["taped_fwd_ms", "reverse_ms"]:
         assert math.isfinite(row[key]) and row[key] > 0, key
     assert row["fwd_steps_per_s"] > row["fwdbwd_steps_per_s"]  # the backward pass is not free
+    assert row["fwdbwd_cost"] == pytest.approx(row["fwd_steps_per_s"] / row["fwdbwd_steps_per_s"])
     assert row["ratio_vs_mujoco"] == pytest.approx(row["fwd_steps_per_s"] / row["mujoco_steps_per_s"])
+    assert row["ratio_vs_mujoco_per_cpu_s"] == pytest.approx(row["fwd_steps_per_cpu_s"] / row["mujoco_steps_per_cpu_s"])
+    assert ("object" in result) == (task == "spray_bottle")
+
+
+@pytest.mark.parametrize("task", list_tasks())
+def test_throughput_bench_takes_every_registered_task(task):
+    args = build_parser().parse_args(["throughput", "--task", task])
+    assert args.task == task and not args.all
+
+
+def test_throughput_bench_all_runs_every_registered_task_into_one_table(monkeypatch):
+    from dexmots_rl.apps import bench_throughput
+
+    def one_task(task, **options):  # the rows of one task, as run_throughput returns them
+        return {"task": task, "device": "cpu", "dt": 0.001, "substeps": options["substeps"], "obs": options["obs"],
+                "threads": 1, "mujoco_threads": 2, "rows": [{"num_envs": n, "fwd_steps_per_s": 1.0}
+                                                            for n in options["num_envs"]]}
+
+    monkeypatch.setattr(bench_throughput, "run_throughput", one_task)
+    result = run(["throughput", "--all", "--num-envs", "2", "4", "--substeps", "8", "--quiet"])
+    assert result["tasks"] == list_tasks() and result["substeps"] == 8
+    assert [(r["task"], r["num_envs"]) for r in result["rows"]] == [(t, n) for t in list_tasks() for n in (2, 4)]
+    assert format_table(result).splitlines()[1].split()[:3] == ["task", "dt", "num_envs"]
 
 
 @pytest.mark.slow  # the benchmark at full size

@@ -14,11 +14,11 @@ import pytest
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "gpu_check.sh"
 
 
-@pytest.mark.slow  # every benchmark of the script, the Allegro scene in float64 among them
+@pytest.mark.slow  # every benchmark of the script, a tool scene among them
 def test_gpu_check_script_runs_end_to_end_on_cpu_and_writes_every_figure(tmp_path):
     out = tmp_path / "gpu_check.json"
     env = dict(os.environ, PYTHON=sys.executable, PYTHONPATH=str(SCRIPT.parents[1]))
-    done = subprocess.run(["bash", str(SCRIPT), "--device", "cpu", "--out", str(out), "--tasks", "screw_claw", "allegro_rotate",
+    done = subprocess.run(["bash", str(SCRIPT), "--device", "cpu", "--out", str(out), "--tasks", "screw_claw", "spray_bottle",
                   "--num-envs", "2", "--rgb-envs", "2", "--min-time", "0.02", "--pipeline-steps", "2",
                   "--grad-horizon", "2", "--grad-draws", "1", "--agree-steps", "5", "--agree-envs", "2",
                   "--train-envs", "4", "--train-seconds", "2", "--eval-episodes", "2", "--compile-jobs", "1",
@@ -33,7 +33,7 @@ def test_gpu_check_script_runs_end_to_end_on_cpu_and_writes_every_figure(tmp_pat
     assert written["machine"]["warp"] and written["machine"]["device"] == "cpu"
     assert all(part["ok"] for part in written["compile"])
     rows = {(t["task"], t["obs"]): t["rows"] for t in written["throughput"]}
-    assert set(rows) == {(task, obs) for task in ("screw_claw", "allegro_rotate") for obs in ("state", "rgb")}
+    assert set(rows) == {(task, obs) for task in ("screw_claw", "spray_bottle") for obs in ("state", "rgb")}
     for task_rows in rows.values():
         for row in task_rows:
             assert row["fwd_steps_per_s"] > 0 and row["fwdbwd_steps_per_s"] > 0 and row["mujoco_steps_per_s"] is None
@@ -42,7 +42,7 @@ def test_gpu_check_script_runs_end_to_end_on_cpu_and_writes_every_figure(tmp_pat
     assert written["agreement"]["agree"] and written["agreement"]["max_abs_diff"] == 0.0  # CPU against itself
     train = written["train"]
     assert 0.0 <= train["success_rate"] <= 1.0 and train["wall_clock_s"] < 30 and train["env_steps"] > 0
-    assert set(written["goals_met"]) >= {"screw_claw_fwd_steps_per_s", "allegro_rotate_fwd_steps_per_s",
+    assert set(written["goals_met"]) >= {"screw_claw_fwd_steps_per_s", "spray_bottle_fwd_steps_per_s",
                                          "rgb_steps_per_s", "ahac_screw_claw_success"}
     assert all(math.isfinite(s) for s in written["seconds"].values())
     assert result["train"]["success_rate"] == train["success_rate"]

@@ -1,6 +1,7 @@
 """``dexmots-bench``: simulator throughput against MuJoCo, and gradient quality against finite differences.
 
     dexmots-bench throughput --task screw_claw --json [--num-envs 1 16 64 256 1024] [--device cuda] [--obs rgb]
+    dexmots-bench throughput --all --json --num-envs 256   # every registered task against MuJoCo, per CPU-second too
     dexmots-bench grad --task screw_claw --json [--horizons 1 8 32] [--eps 1e-6] [--draws 8]
     dexmots-bench grad --task spray_bottle --json --draws 2          # a tool task, from its pre-grasp
     dexmots-bench grad --task operate --object jar_a --json --draws 2 # any library object
@@ -31,6 +32,7 @@ import sys
 from ..envs import list_tasks
 from ._cli import errors_as_one_line
 from .bench_sysid import add_sysid_parser, format_sysid_table, run_sysid_bench
+from .bench_gpu import GPU_TASKS
 from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, grad_bench_tasks, train_one
 
 __all__ = ["GOALS", "build_parser", "format_table", "run", "main"]
@@ -51,8 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
         p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
 
-    p = sub.add_parser("throughput", help="env-steps/s: forward, forward+backward, MuJoCo")
-    common(p)
+    p = sub.add_parser("throughput", help="env-steps/s per wall and CPU second: forward, forward+backward, MuJoCo")
+    common(p, list_tasks())  # any registered task, on its own scene
+    p.add_argument("--all", action="store_true", help="every registered task, one row per task and world count")
+    p.add_argument("--object", default=None,
+                   help="the library object operate or a tool task operates (default: the task's own)")
     p.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 64, 256])
     p.add_argument("--substeps", type=int, default=16)
     p.add_argument("--min-time", type=float, default=1.0, help="seconds of timed work per number")
@@ -122,8 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "into one JSON file")
     p.add_argument("--device", default="cuda", help="cuda[:i]; cpu runs the same check (tiny sizes in the tests)")
     p.add_argument("--out", default="gpu_check.json", help="the JSON file (rewritten after every section)")
-    p.add_argument("--tasks", nargs="+", default=["screw_claw", "allegro_rotate", "repose_cube"],
-                   choices=bench_tasks())
+    p.add_argument("--tasks", nargs="+", default=list(GPU_TASKS), choices=list_tasks())
     p.add_argument("--num-envs", type=int, nargs="+", default=[1024, 4096, 16384])
     p.add_argument("--rgb-envs", type=int, default=4096, help="worlds of the RGB 64x64 rows")
     p.add_argument("--min-time", type=float, default=0.5, help="seconds of timed work per number")
@@ -185,10 +189,12 @@ def _execute(args: argparse.Namespace) -> dict:
     # warp reports kernel compilation with print(); keep stdout for the result alone
     with contextlib.redirect_stdout(sys.stderr):
         if args.bench == "throughput":
-            from .bench_throughput import run_throughput
+            from .bench_throughput import run_throughput, run_throughput_all
 
-            return run_throughput(args.task, args.num_envs, args.device, args.substeps, args.min_time,
-                                  args.settle_steps, args.chunk_steps, obs=args.obs)
+            options = dict(num_envs=args.num_envs, device=args.device, substeps=args.substeps, min_time=args.min_time,
+                           settle_steps=args.settle_steps, chunk_steps=args.chunk_steps, obs=args.obs,
+                           object_name=args.object)
+            return run_throughput_all(list_tasks(), **options) if args.all else run_throughput(args.task, **options)
         if args.bench == "train":
             return _train_bench(args)
         if args.bench == "gpu":

@@ -16,8 +16,8 @@ import torch
 
 from ..envs import BenchPoses, DexEnv, list_tasks, make_env, task_entry, task_scene
 
-__all__ = ["bench_tasks", "grad_bench_tasks", "bench_task", "bench_env", "load_task_scene", "device_name", "measure_rate", "train_one",
-           "TRAIN_GOAL_SUCCESS"]
+__all__ = ["bench_tasks", "grad_bench_tasks", "bench_task", "bench_env", "load_task_scene", "device_name",
+           "measure_rate", "measure_rates", "train_one", "TRAIN_GOAL_SUCCESS"]
 
 
 def bench_tasks() -> list[str]:
@@ -64,16 +64,23 @@ def device_name(device: str) -> str:
     return dev.type
 
 
-def measure_rate(chunk: Callable[[], int], min_time: float, sync: Callable[[], None] = lambda: None) -> float:
-    """Call ``chunk()`` (returns the env-steps it did) until ``min_time`` seconds passed; env-steps/s."""
+def measure_rates(chunk: Callable[[], int], min_time: float,
+                  sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
+    """Call ``chunk()`` (returns the env-steps it did) until ``min_time`` wall seconds passed; (env-steps per
+    wall second, env-steps per CPU-second of this process, every thread counted)."""
     sync()
-    steps, start = 0, time.perf_counter()
+    steps, start, cpu_start = 0, time.perf_counter(), time.process_time()
     while True:
         steps += chunk()
         sync()
         elapsed = time.perf_counter() - start
         if elapsed >= min_time:
-            return steps / elapsed
+            return steps / elapsed, steps / max(time.process_time() - cpu_start, 1e-9)
+
+
+def measure_rate(chunk: Callable[[], int], min_time: float, sync: Callable[[], None] = lambda: None) -> float:
+    """Env-steps per wall second of :func:`measure_rates`."""
+    return measure_rates(chunk, min_time, sync)[0]
 
 
 TRAIN_GOAL_SUCCESS = 0.9  # the success rate dexmots-bench train reports against (paper: 92.6 +- 6.4 %)

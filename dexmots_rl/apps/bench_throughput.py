@@ -1,10 +1,16 @@
-"""Throughput: env-steps/s of ``Simulator.step`` (forward, forward+backward) against MuJoCo on one scene.
+"""Throughput: env-steps/s of a task's simulator step (forward, forward+backward) against MuJoCo on one scene.
 
-Protocol, identical for both simulators: every world starts from the task's open pose with the closing
-action applied, is stepped ``settle_steps`` env steps until the fingers touch the object, and the timed
+Any registered task runs: its env's scene (the knob and cube MJCFs; a tool task's or ``operate``'s hand and
+library object on its table, whose MJCF MuJoCo loads from ``scene.path``), contact law and bench poses
+(:meth:`~dexmots_rl.envs.DexEnv.bench_poses`). Protocol, identical for both simulators: every world starts
+from the task's open pose with the closing action applied, is stepped ``settle_steps`` env steps until the fingers touch the object, and the timed
 work is repeated chunks of ``chunk_steps`` env steps restarted from that contact state (so the whole
 measured window is in contact; the fraction of steps with contact is measured and reported). One env
-step is ``substeps`` physics steps of the MJCF's timestep.
+step is ``substeps`` physics steps of the MJCF's timestep. Every rate is given per wall second
+(``*_steps_per_s``) and per CPU-second of this process, all its threads counted (``*_steps_per_cpu_s``: core
+for core, whatever the thread counts ``threads`` and ``mujoco_threads``; on a shared machine it moves less
+than the wall rate); ``ratio_vs_mujoco`` and ``ratio_vs_mujoco_per_cpu_s`` are ours forward over MuJoCo's, and
+``fwdbwd_cost`` the cost of a forward + backward step in forward steps (wall).
 
 * ``fwd``: ``Simulator.step`` with no input requiring grad (no tape).
 * ``fwdbwd``: each step's ``joint_q`` requires grad; step, then backward of the sum of all outputs.
@@ -25,10 +31,10 @@ import os
 import numpy as np
 import torch
 
-from ..envs import task_contact
-from .bench_setup import bench_task, device_name, load_task_scene, measure_rate
+from ..sim import cpu_threads
+from .bench_setup import bench_env, device_name, measure_rate, measure_rates
 
-__all__ = ["SimBench", "MujocoBench", "run_throughput"]
+__all__ = ["ROW_KEYS", "SimBench", "MujocoBench", "run_throughput", "run_throughput_all", "throughput_row"]
 
 log = logging.getLogger(__name__)
 
@@ -148,25 +154,27 @@ class MujocoBench:
         state = np.empty(mujoco.mj_stateSize(m, self.spec))
         mujoco.mj_getState(m, d, state, self.spec)
         nstep = chunk_steps * substeps
-        nthread = min(os.cpu_count() or 1, num_envs)
+        self.nthread = nthread = min(os.cpu_count() or 1, num_envs)
         self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
         self.models = [m] * num_envs
-        self.datas = [mujoco.MjData(m) for _ in range(max(nthread, 1))]
+        self.datas = [mujoco.MjData(m) for _ in range(nthread)]
         self.init = np.tile(state, (num_envs, 1))
         self.ctrl = np.tile(np.asarray(task.close_action, dtype=np.float64), (num_envs, nstep, 1))
         self.state_out = np.empty((num_envs, nstep, state.size))
         self.sensor_out = np.empty((num_envs, nstep, m.nsensordata))
 
     def contact_fraction(self) -> float:
-        """Fraction of physics steps of one chunk (from the settled state) with ``ncon > 0``."""
-        mujoco, d = self.mujoco, self.mujoco.MjData(self.model)
-        state = self.init[0].copy()
-        mujoco.mj_setState(self.model, d, state, self.spec)
+        """Fraction of physics steps of one chunk (from the settled state) with a contact of the hand (a geom of
+        the tree that holds the actuated joints: not an object resting on its table)."""
+        mujoco, m, d = self.mujoco, self.model, self.mujoco.MjData(self.model)
+        hand = m.body_rootid[m.jnt_bodyid[m.actuator_trnid[0, 0]]]
+        mujoco.mj_setState(m, d, self.init[0].copy(), self.spec)
         d.ctrl[:] = self.ctrl[0, 0]
         touching = 0
         for _ in range(self.chunk_steps * self.substeps):
-            mujoco.mj_step(self.model, d)
-            touching += d.ncon > 0
+            mujoco.mj_step(m, d)
+            geoms = np.stack([d.contact.geom1[:d.ncon], d.contact.geom2[:d.ncon]])
+            touching += bool((m.body_rootid[m.geom_bodyid[geoms]] == hand).any())
         return touching / (self.chunk_steps * self.substeps)
 
     def chunk(self) -> int:
@@ -178,38 +186,64 @@ class MujocoBench:
         self.pool.close()
 
 
+ROW_KEYS = ("num_envs", "fwd_steps_per_s", "fwd_steps_per_cpu_s", "fwdbwd_steps_per_s", "fwdbwd_steps_per_cpu_s",
+            "mujoco_steps_per_s", "mujoco_steps_per_cpu_s", "ratio_vs_mujoco", "ratio_vs_mujoco_per_cpu_s",
+            "fwdbwd_cost", "contact_fraction", "mujoco_contact_fraction", "taped_fwd_ms", "reverse_ms")
+
+
+def throughput_row(ours: SimBench, mj: MujocoBench | None, min_time: float, sync) -> dict:
+    """One world count's row (:data:`ROW_KEYS`; MuJoCo's entries None without ``mj``)."""
+    n = ours.sim.num_worlds
+    row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
+           "mujoco_contact_fraction": mj.contact_fraction() if mj else None}
+    timed = [("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk)] + ([("mujoco", mj.chunk)] if mj else [])
+    for name, fn in timed:
+        fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
+        row[f"{name}_steps_per_s"], row[f"{name}_steps_per_cpu_s"] = measure_rates(fn, min_time, sync)
+        log.info("num_envs=%d %s: %.0f env-steps/s, %.0f per CPU-second", n, name, row[f"{name}_steps_per_s"],
+                 row[f"{name}_steps_per_cpu_s"])
+    row.update(ours.split_ms(min_time, sync))
+    row["fwdbwd_cost"] = row["fwd_steps_per_s"] / row["fwdbwd_steps_per_s"]  # a forward + backward step, in forward steps
+    if mj is not None:
+        row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
+        row["ratio_vs_mujoco_per_cpu_s"] = row["fwd_steps_per_cpu_s"] / row["mujoco_steps_per_cpu_s"]
+    if row["contact_fraction"] == 0 or row["mujoco_contact_fraction"] == 0:
+        log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %s)", n,
+                    row["contact_fraction"], row["mujoco_contact_fraction"])
+    return {k: row.get(k) for k in ROW_KEYS}
+
+
 def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: str = "cpu", substeps: int = 16,
                    min_time: float = 1.0, settle_steps: int = 20, chunk_steps: int = 16, obs: str = "state",
-                   mujoco: bool = True) -> dict:
-    """Measure every row (see the module docstring); returns the result dict printed by ``dexmots-bench``.
-    ``mujoco=False`` leaves MuJoCo out (its rows' entries are None): ours only, e.g. on a GPU."""
-    setup = bench_task(task)
-    scene, path = load_task_scene(task)
-    law = task_contact(task)  # the contact law the task's env simulates with
+                   mujoco: bool = True, object_name: str | None = None) -> dict:
+    """Measure every row (see the module docstring) of any registered task; returns the result dict printed by
+    ``dexmots-bench``. ``mujoco=False`` leaves MuJoCo out (its rows' entries are None): ours only, e.g. on a
+    GPU. ``object_name``: the library object of ``operate`` or a tool task (None: the task's own)."""
+    env = bench_env(task, **({} if object_name is None else {"object": object_name}))
+    poses, scene, law = env.bench_poses(), env.sim.scene, env.sim.contact
     sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
     rows = []
     for n in num_envs:
-        log.info("num_envs=%d: settling (the first step compiles the warp kernels when not cached)", n)
-        ours = SimBench(scene, setup, n, device, substeps, settle_steps, chunk_steps, obs, law)
-        mj = MujocoBench(path, setup, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps) if mujoco else None
-        row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
-               "mujoco_contact_fraction": mj.contact_fraction() if mj else None}
-        timed = [("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk)] + ([("mujoco", mj.chunk)] if mj else [])
-        for name, fn in timed:
-            fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
-            row[f"{name}_steps_per_s"] = measure_rate(fn, min_time, sync)
-            log.info("num_envs=%d %s: %.0f env-steps/s", n, name, row[f"{name}_steps_per_s"])
-        row.update(ours.split_ms(min_time, sync))
-        if mj is not None:
-            mj.close()
-            row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
-        else:
-            row["mujoco_steps_per_s"] = row["ratio_vs_mujoco"] = None
-        if row["contact_fraction"] == 0 or row["mujoco_contact_fraction"] == 0:
-            log.warning("num_envs=%d: no contact in the measured window (ours %.2f, mujoco %s)", n,
-                        row["contact_fraction"], row["mujoco_contact_fraction"])
-        rows.append({k: row[k] for k in ("num_envs", "fwd_steps_per_s", "fwdbwd_steps_per_s", "mujoco_steps_per_s",
-                                         "ratio_vs_mujoco", "contact_fraction", "mujoco_contact_fraction",
-                                         "taped_fwd_ms", "reverse_ms")})
-    return {"task": task, "device": device_name(device), "dt": float(ours.sim.sub_dt), "substeps": substeps,
-            "obs": obs, "rows": rows}
+        log.info("%s num_envs=%d: settling (the first step compiles the warp kernels when not cached)", task, n)
+        ours = SimBench(scene, poses, n, device, substeps, settle_steps, chunk_steps, obs, law)
+        mj = MujocoBench(scene.path, poses, n, ours.sim.sub_dt, substeps, settle_steps, chunk_steps) if mujoco else None
+        try:
+            rows.append(throughput_row(ours, mj, min_time, sync))
+        finally:
+            if mj is not None:
+                mj.close()
+    result = {"task": task, "device": device_name(device), "dt": float(ours.sim.sub_dt), "substeps": substeps,
+              "obs": obs, "threads": cpu_threads(), "mujoco_threads": mj.nthread if mujoco else None, "rows": rows}
+    if hasattr(env.config, "object"):  # operate and the tool tasks: which library object
+        result["object"] = env.config.object
+    return result
+
+
+def run_throughput_all(tasks, **options) -> dict:
+    """:func:`run_throughput` of each task in ``tasks``, one row per (task, world count) (``task`` and ``dt`` in
+    each row), the options shared."""
+    results = [run_throughput(task, **options) for task in tasks]
+    first = results[0]
+    return {"tasks": list(tasks), "device": first["device"], "substeps": first["substeps"], "obs": first["obs"],
+            "threads": first["threads"], "mujoco_threads": first["mujoco_threads"],
+            "rows": [{"task": r["task"], "dt": r["dt"], **row} for r in results for row in r["rows"]]}

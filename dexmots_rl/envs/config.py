@@ -126,7 +126,9 @@ class BenchPoses:
     aims at. A task declares them as its class's ``bench`` or builds them per scene
     (:meth:`~dexmots_rl.envs.DexEnv.bench_poses`, e.g. from its pre-grasps)."""
 
-    open_q: tuple[float, ...]  # hand open, not touching; closing from here makes contact
+    # where the throughput window starts: the hand open, not touching, closing from here makes contact (a
+    # tool task: its pre-grasp, where its episodes start)
+    open_q: tuple[float, ...]
     close_action: tuple[float, ...]  # strong closing action used from ``open_q`` (throughput)
     touch_q: tuple[float, ...]  # fingers already on the object (gradients with contact)
     free_q: tuple[float, ...]  # fingers far from the object (gradients without contact)

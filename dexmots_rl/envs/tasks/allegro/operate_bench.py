@@ -8,6 +8,8 @@ on its table) they are:
   squeezed by :data:`SQUEEZE_FORCE` per fingertip with a grasp region, pressed into its part along the region's
   inward normal (:func:`~dexmots_rl.envs.object_pregrasp.squeeze_torque`; on the spray bottle and the drawer
   this moves the operated joint a few per cent of its travel in 32 steps, the base under 2 mm);
+- throughput (``dexmots-bench throughput``): from the touching pose squeezed, where the task's episodes start
+  (from the open hand the squeeze leaves some tools untouched);
 - free: :data:`EXTENDED`, held there by :data:`RELEASE` (a palm-down hand's fingers droop onto the object
   within half a second of zero torque);
 - the loss: the operated joint toward the task's goal, at the reference's speed (the goal's distance over
@@ -48,7 +50,7 @@ def operate_bench_poses(env) -> BenchPoses:
     obj = tuple(float(x) for x in sim.tree.q0)
     squeeze = tuple(float(x) for x in squeeze)
     return BenchPoses(
-        open_q=(*(float(x) for x in env._open), *obj),
+        open_q=(*(float(x) for x in hand), *obj),  # the throughput window starts where the episodes do
         close_action=squeeze,
         touch_q=(*(float(x) for x in hand), *obj),
         free_q=(*EXTENDED, *obj),
