@@ -9,7 +9,7 @@ import torch
 
 from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import list_objects, load_object
-from dexmots_rl.envs.tasks.allegro.operate_object import HAND_CONTACT
+from dexmots_rl.envs.tasks.allegro.hand import CONTACT
 from dexmots_rl.quaternions import quat_to_matrix
 from dexmots_rl.sim import ArticulatedScene, ArticulatedSimulator, load_scene
 from dexmots_rl.sim._energy import tree_energy, tree_kinematics
@@ -148,7 +148,7 @@ def test_bang_bang_fingers_inject_no_energy(name):
     (:data:`STRIKE_PEAKS`): a contact that injects energy flings objects at hundreds of rad/s."""
     scene = _scene(name)
     n = 8
-    sim = ArticulatedSimulator(scene, n, contact=HAND_CONTACT)
+    sim = ArticulatedSimulator(scene, n, contact=CONTACT)
     q, qd = sim.initial_state()
     params = sim.default_params()
     tree, nu = scene.tree, sim.nu

@@ -22,12 +22,13 @@ from __future__ import annotations
 import numpy as np
 
 from ...config import BenchPoses
+from .hand import THUMB_ROTATION_MIN
 
 __all__ = ["EXTENDED", "RELEASE", "SQUEEZE_FORCE", "operate_bench_poses"]
 
 SQUEEZE_FORCE = 1.0  # N per fingertip: keeps every contact (a few N in all) without pushing a free tool away
 # rad: every finger straightened back to near its extension limit, the thumb out at the palm's side
-EXTENDED = (0.0, -0.19, -0.17, -0.22) * 3 + (0.263, -0.1, -0.18, -0.16)
+EXTENDED = (0.0, -0.19, -0.17, -0.22) * 3 + (THUMB_ROTATION_MIN, -0.1, -0.18, -0.16)
 RELEASE = (0.0, -0.3, -0.3, -0.3) * 3 + (-0.3,) * 4  # actions: hold EXTENDED against gravity
 
 

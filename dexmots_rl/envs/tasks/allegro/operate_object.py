@@ -50,7 +50,7 @@ import torch
 from tensordict import TensorDict
 
 from ....quaternions import quat_angle
-from ....sim import SLIDE, ContactParams, joint_param_names
+from ....sim import SLIDE, joint_param_names
 from ...base import DexEnv
 from ...demos import demo_trajectory, part_torque
 from ...object_pregrasp import operate_pregrasp_path
@@ -60,15 +60,14 @@ from ...registry import register_task
 from ...config import TaskConfig, rule
 from ...rewards import RewardCoefficients, action_penalty, angle_tracking_reward, distal_weighted_joint_weights, \
     fingertip_reward
+from . import hand
 from .object_scenes import build_scene, object_names, scene_dir
 from .urdf_object import UrdfOptions, cached_pregrasps, urdf_load_options
 
-__all__ = ["OperateObjectConfig", "OperateObjectEnv", "HAND_CONTACT", "build_scene"]
+__all__ = ["OperateObjectConfig", "OperateObjectEnv", "build_scene"]
 
-# the hand's contact law as allegro_rotate sizes it (a centimetre-scale object, fingertips pushing ~5 N)
-HAND_CONTACT = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
-
-OPEN = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)  # rad: fingers slightly curled, the thumb opposed
+# rad, in the hand's joint order: task.initial="open", the fingers slightly curled above the object, the thumb opposed
+ABOVE_OBJECT = (0.0, 0.3, 0.3, 0.3) * 3 + (0.8, 0.3, 0.3, 0.3)
 
 
 @dataclasses.dataclass
@@ -124,7 +123,7 @@ def _pose(pos, rot) -> list[float]:
 class OperateObjectEnv(DexEnv):
     """The Allegro hand and an articulated object; see the module docstring."""
 
-    contact_params = HAND_CONTACT
+    contact_params = hand.CONTACT
     reward_terms = ("pose", "wrench", "action", "fingertip", "base")
     breakdowns = {"goal": ("task", "goal")}
 
@@ -158,7 +157,7 @@ class OperateObjectEnv(DexEnv):
         far = hi if hi - rest >= rest - lo else lo
         self.joint_rest, self.joint_span = rest, hi - lo
         self.goal_value = rest + c.goal_fraction * (far - rest)
-        self._open = torch.as_tensor(OPEN, dtype=dt, device=dev)
+        self._open = torch.as_tensor(ABOVE_OBJECT, dtype=dt, device=dev)
         self._lower = torch.as_tensor(scene.dof_lower, dtype=dt, device=dev)
         self._upper = torch.as_tensor(scene.dof_upper, dtype=dt, device=dev)
         self._base0 = torch.as_tensor(tree.q0[:7] if tree.free else _pose(tree.offset_pos[0], tree.offset_rot[0]),

@@ -19,8 +19,7 @@ same term made the policy leave the cube still (0 %, docs/devnotes.md, the funct
 Reward (paper Eq. 1-3): ``λ_pose exp(-‖(pos_scale Δx, θ)‖) + λ_wrench exp(-‖Δf / force_scale, Δτ /
 torque_scale‖) - λ_act ‖w ⊙ a‖ + λ_f Σ_i exp(-‖x_fi - x_o‖ / fingertip_scale)``.
 
-Contact: the fingers' penalty law at sharpness 1000 /m; the claw's 200 /m pushes hard ~1 cm away, and
-the proximal links at the palm edge sit 9 mm from a centred cube, which knocked it off the palm.
+Contact: the hand's law (:data:`.hand.CONTACT`; at the claw's sharpness the palm-edge links knocked the cube off).
 
 Example:
     >>> from dexmots_rl.envs import make_env
@@ -38,23 +37,22 @@ import torch
 from tensordict import TensorDict
 
 from ....quaternions import quat_angle, quat_conjugate, quat_multiply, quat_to_matrix, slerp
-from ....sim import ContactParams
 from ...base import DexEnv
 from ...config import BenchPoses, PlanProblem, TaskConfig, rule
 from ...references import lookup
 from ...registry import register_task
 from ...rewards import (RewardCoefficients, action_penalty, distal_weighted_joint_weights, fingertip_reward,
                         pose_reward, wrench_reward)
+from . import hand
 
 __all__ = ["ReposeCubeConfig", "ReposeCubeEnv", "REST", "original_test"]
 
-# joint order j0-j15 (index, middle, ring, thumb): the three fingers curled over the cube, tips 8 mm above
+# rad, in the hand's joint order (.hand.JOINT_NAMES): the three fingers curled over the cube, tips 8 mm above
 # its top face near the -x edge, the thumb tip 2 cm above it (MuJoCo forward kinematics). It is both the
 # start pose and the zero action (ActionMap's center): mid-range targets hold the fingertips 6-11 cm from
 # the cube, where the simulator's gradient cannot tell them how to turn it, and tips on the top face can
 # roll the cube about x by sliding sideways (j0), which tips on its -x face did not learn (they only spun it about z)
 REST = (0.0, 1.152, 1.284, 0.252) * 3 + (0.49, 1.16, 0.791, 1.328)
-OPEN = (0.0,) * 12 + (0.263, 0.0, 0.0, 0.0)
 CUBE = (0.0, 0.0, 0.1325, 1.0, 0.0, 0.0, 0.0)  # resting on the palm (the MJCF's start)
 NON_NEGATIVE = rule(ge=0)
 
@@ -128,13 +126,13 @@ class ReposeCubeEnv(DexEnv):
     asset = "allegro_cube.xml"
     goal_dim = 7
     reward_terms = ("pose", "wrench", "action", "fingertip", "precision", "position", "drop")
-    contact_params = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
+    contact_params = hand.CONTACT
     bench = BenchPoses(
-        open_q=(*OPEN, *CUBE),
+        open_q=(*hand.OPEN, *CUBE),
         close_action=(0.0, 0.6, 0.6, 0.6) * 3 + (0.0, 0.6, 0.3, 0.3),
         # fingertips pressed on the cube's -x face (the "touching" pose of the scene's check)
-        touch_q=((0.0, 0.6, 1.55, 1.2) * 3 + (0.263, 0.3, 0.2, 0.3)) + CUBE,
-        free_q=(*OPEN, *CUBE),
+        touch_q=((0.0, 0.6, 1.55, 1.2) * 3 + (hand.THUMB_ROTATION_MIN, 0.3, 0.2, 0.3)) + CUBE,
+        free_q=(*hand.OPEN, *CUBE),
         squeeze_action=(0.0, 0.2, 0.2, 0.2) * 3 + (0.0, 0.0, 0.0, 0.0),
     )
     action_center = REST

@@ -12,9 +12,7 @@ The goal range stops at 0.5 rad: twisting the grasp sideways turns the knob ~0.6
 fingers' abduction runs out (measured in this simulator and in MuJoCo on the same scene), and a larger
 turn would need finger gaiting, which is a different task.
 
-Contact is sized for the hand (stiffness 5e3 N/m, sharpness 1000 /m, surface smoothing 2 mm): the
-claw's defaults (1 cm smoothing, ~69 N at zero gap) would make the knob 7 mm too large and push 12 N
-against fingertips that can give ~5 N.
+Contact is the hand's law (:data:`.hand.CONTACT`, sized for a centimetre-scale knob).
 
 Example:
     >>> from dexmots_rl.envs import make_env
@@ -27,20 +25,21 @@ from __future__ import annotations
 
 import dataclasses
 
-from ....sim import ContactParams
 from ...config import BenchPoses, PlanProblem
 from ...registry import register_task
 from ...rewards import RewardCoefficients
 from ..knob import KnobTurnConfig, KnobTurnEnv
+from . import hand
 
 __all__ = ["AllegroRotateConfig", "AllegroRotateEnv", "INITIAL_POSES"]
 
-# joint order j0-j15: index (abduct, 3 flex), middle, ring, thumb (j12 about -x, j13 z, j14-15 y)
+# rad, in the hand's joint order (.hand.JOINT_NAMES)
 # "grasp": fingertips 0.5 mm into the knob's far faces (+45, 0, -45 deg), the thumb on the near face
 GRASP = (-0.102, 0.58, 0.67, 0.639, 0.0, 0.494, 0.604, 0.598, 0.102, 0.58, 0.67, 0.639, 0.919, 1.006, 0.662, 0.787)
 # "open": 31-55 mm gaps; closing toward the grasp touches at ~60 % of the way
-OPEN = (-0.102, 0.33, 0.42, 0.389, 0.0, 0.244, 0.354, 0.348, 0.102, 0.33, 0.42, 0.389, 0.919, 1.15, 0.462, 0.587)
-INITIAL_POSES = {"grasp": GRASP, "open": OPEN}
+NEAR_KNOB = (-0.102, 0.33, 0.42, 0.389, 0.0, 0.244, 0.354, 0.348, 0.102, 0.33, 0.42, 0.389, 0.919, 1.15, 0.462,
+             0.587)
+INITIAL_POSES = {"grasp": GRASP, "open": NEAR_KNOB}
 
 
 @dataclasses.dataclass
@@ -65,13 +64,13 @@ class AllegroRotateEnv(KnobTurnEnv):
     """Allegro hand + knob on a vertical hinge; see the module docstring."""
 
     asset = "allegro_knob.xml"
-    contact_params = ContactParams(stiffness=5.0e3, sharpness=1000.0, surface_smoothing=0.002, slip_velocity=0.1)
+    contact_params = hand.CONTACT
     bench = BenchPoses(
-        open_q=(*OPEN, 0.0),
+        open_q=(*NEAR_KNOB, 0.0),
         # flex every finger toward the knob, the thumb (j13 decreasing) into it
         close_action=(0.0, 0.6, 0.6, 0.6) * 3 + (0.0, -0.6, 0.3, 0.3),
         touch_q=(*GRASP, 0.0),
-        free_q=(0.0,) * 12 + (0.263, 0.0, 0.0, 0.0, 0.0),
+        free_q=(*hand.OPEN, 0.0),
         squeeze_action=(0.0, 0.3, 0.3, 0.3) * 3 + (0.0, -0.3, 0.0, 0.0),
     )
     plan_problem = PlanProblem(start=(0.0,), goal=(0.5,), steps=60)
