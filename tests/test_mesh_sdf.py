@@ -15,8 +15,8 @@ from dexmots_rl.assets.hand_scene import hand_object_scene_xml
 from dexmots_rl.assets.objects import load_object
 from dexmots_rl.sim import load_scene
 from dexmots_rl.sim._articulated import ArticulatedSimulator
-from dexmots_rl.sim._constants import GEOM_SDF
-from dexmots_rl.sim._hand_kernels import SDF_PAD, build_hand_kernels
+from dexmots_rl.sim._constants import GEOM_SDF, SDF_PAD
+from dexmots_rl.sim._hand_kernels import build_hand_kernels
 from dexmots_rl.sim._kernel_funcs import build_funcs
 from dexmots_rl.sim._mesh_sdf import sdf_grid
 

@@ -5,10 +5,10 @@ with moving parts, sim/_object_model.py). :class:`ArticulatedSimulator` steps it
 :class:`~dexmots_rl.sim.Simulator` (state ``joint_q``/``joint_qd`` = the hand's joints then the object's
 coordinates, a :class:`~dexmots_rl.sim.Control`, named per-world parameters), so envs use either.
 
-One substep is six launches over all worlds, seven when the palm collides (each kernel module documents its
-part): the object's frames, the table's contact (a thread per world and body), the palm's (the same), the
-fingers' contact (a thread per world and finger sphere), the sum of each body's contacts, the object tree's solve
-and the hand's (a thread per world and finger). The launches are recorded once per trajectory of buffers and
+One substep is seven launches over all worlds, eight when the palm collides (each kernel module documents its
+part): the object's frames, the hand's link frames (a thread per world and finger), the table's contact (a thread
+per world and body), the palm's (the same), the fingers' contact (a thread per world and finger link), the sum of
+each body's contacts, the object tree's solve and the hand's (a thread per world and finger). The launches are recorded once per trajectory of buffers and
 replayed, their adjoints in reverse for the gradient (sim/_articulated_stepper.py).
 
 A scene of K object variants (sim/_object_variants.py) steps each world's own variant: the per-world parameter

@@ -12,8 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from ._constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE
-from ._hand_kernels import SDF_PAD
+from ._constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, SDF_PAD
 from ._mesh_sdf import sdf_grid
 from ._mjcf_shapes import AssetError, _quat_to_mat
 from ._object_model import ObjectTree

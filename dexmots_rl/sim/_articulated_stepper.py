@@ -32,7 +32,7 @@ TORCH_FIELDS = ("hq", "hqd", "oq", "oqd", "wrench", "normal", "tau", "q_target",
                 "pose", "tips", "joint_wrench")
 CONTROL_FIELDS = TORCH_FIELDS[6:12]  # the step's inputs after the state, in Trajectory.load's order
 # the warp-only buffers, by group (ArticulatedTrajectory.__init__ documents each)
-WARP_GROUPS = ("frames", "table", "palm", "hand", "total", "scratch", "final", "variant")
+WARP_GROUPS = ("frames", "links", "table", "palm", "hand", "total", "scratch", "final", "variant")
 
 
 @dataclasses.dataclass
@@ -77,6 +77,7 @@ class ArticulatedTrajectory:
         # per-substep intermediates: frames (x, R, c, v, w), table contact (f, t, Kvv, Kvw, Kww), the fingers'
         # contact (gen, f, t, normal, which spheres touched), each body's total contact (f, t), the solve's scratch
         self.frames = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb)]
+        self.links = [new(k.vec3, nu), new(k.mat33, nu), new(k.vec3, nu)]  # each hand link's x, R, joint axis
         self.table = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
         self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
                      wp.zeros(sub_rows, dtype=k.dtype, device=sim.device),
@@ -91,7 +92,7 @@ class ArticulatedTrajectory:
                              new(k.vec3, nb, n)]
         # each world's object variant this step (the packed parameters' last column with K > 1; else zeros)
         self.variant = torch.zeros(n, dtype=torch.int32, device=sim.torch_device)
-        self._warp = dict(zip(WARP_GROUPS, [self.frames, self.table, self.palm, self.hand, self.total, self.scratch,
+        self._warp = dict(zip(WARP_GROUPS, [self.frames, self.links, self.table, self.palm, self.hand, self.total, self.scratch,
                                             self.final_frames, [wp.from_torch(self.variant)]]))
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
@@ -122,7 +123,7 @@ class ArticulatedTrajectory:
             t, g = a.tensors, a.groups
             hq, hqd, oq, oqd = t["hq"], t["hqd"], t["oq"], t["oqd"]
             wrench, normal, joint_wrench, pose, tips = t["wrench"], t["normal"], t["joint_wrench"], t["pose"], t["tips"]
-            frames, table, palm, hand = g["frames"], g["table"], g["palm"], g["hand"]
+            frames, links, table, palm, hand = g["frames"], g["links"], g["table"], g["palm"], g["hand"]
             total, scratch, final = g["total"], g["scratch"], g["final"]
             variant = g["variant"][0][lo:hi]
 
@@ -132,12 +133,13 @@ class ArticulatedTrajectory:
             block = [t[name][lo:hi] for name in CONTROL_FIELDS]
             out = []
             for s in range(self.steps):
-                fr, tb = [rows(x, s) for x in frames], [rows(x, s) for x in table]
+                fr, tb, lk = [rows(x, s) for x in frames], [rows(x, s) for x in table], [rows(x, s) for x in links]
                 gen, hand_f, hand_t, step_normal, touching = [rows(x, s) for x in hand]
                 state = [rows(x, s) for x in (hq, hqd, oq, oqd)]
                 nxt = [rows(x, s + 1) for x in (hq, hqd, oq, oqd)]
                 tot = [rows(x, s) for x in total]
                 out.append((k.frames, dim, [model, variant, state[2], state[3], *fr]))
+                out.append((h.link_frames, (dim, sim.scene.num_fingers), [hand_model, state[0], *lk]))
                 if k.table:
                     out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, *tb]))
                 if palm:
@@ -146,7 +148,7 @@ class ArticulatedTrajectory:
                                 [palm_model, variant, *fr, dt, *tb, *with_palm]))
                     tb = with_palm
                 out.append((h.finger_contact, (dim, num_links),
-                            [hand_model, variant, state[0], state[1], *fr, gen, hand_f, hand_t, step_normal, touching,
+                            [hand_model, variant, state[1], *lk, *fr, gen, hand_f, hand_t, step_normal, touching,
                              only_touching, points_per_link, dt]))
                 out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
                                                   rows(wrench, s), rows(normal, s), rows(joint_wrench, s),
@@ -155,7 +157,7 @@ class ArticulatedTrajectory:
                 out.append((k.substep, dim, [model, variant, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
                                              *[rows(x, s) for x in scratch], nxt[2], nxt[3]]))
                 out.append((h.hand_substep, (dim, sim.scene.num_fingers),
-                            [hand_model, state[0], state[1], *block[:4], gen, dt, nxt[0], nxt[1]]))
+                            [hand_model, state[0], state[1], *block[:4], gen, *lk, dt, nxt[0], nxt[1]]))
             last = [rows(x, self.steps) for x in (hq, oq, oqd)]
             fin = [x[lo:hi] for x in final]
             out.append((k.frames, dim, [model, variant, last[1], last[2], *fin]))

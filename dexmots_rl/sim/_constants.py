@@ -6,7 +6,7 @@ float32 and float64 builds read the same value.
 
 from __future__ import annotations
 
-__all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "LIMIT_WIDTH", "FRICTION_VELOCITY", "GEOM_NONE", "GEOM_BOX",
+__all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "LIMIT_WIDTH", "FRICTION_VELOCITY", "SDF_PAD", "GEOM_NONE", "GEOM_BOX",
            "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF", "GEOM_CONVEX"]
 
 # A contact (finger sphere, palm or table sample) at a gap wider than this many 1/sharpness feels nothing: its
@@ -16,6 +16,10 @@ CONTACT_CUTOFF = 12.0
 LSE_CUTOFF = 12.0
 LIMIT_WIDTH = 0.02  # rad (or m): a range stop stiffens smoothly (C1) over this depth, then is linear
 FRICTION_VELOCITY = 0.05  # rad/s (or m/s): a joint's Coulomb friction is f tanh(qd / FRICTION_VELOCITY)
+# m: a mesh's signed-distance grid reaches this far beyond it, more than a finger sphere's radius (the Allegro's
+# largest is 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is
+# interpolated
+SDF_PAD = 0.02
 
 # Collision geometry. A tool scene's object bodies carry a list of geoms (GEOM_NONE pads it); the knob and cube
 # scenes' one object is a single shape, a convex polytope (GEOM_CONVEX), a sphere, a cylinder or a mesh's
