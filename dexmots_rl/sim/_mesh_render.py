@@ -41,12 +41,10 @@ import torch
 import warp as wp
 
 from ._articulated_scene import ArticulatedScene
-from ._render import Camera, Renderer, camera_view, framing_camera, hand_reach_spheres
+from ._render import Camera, RayCaster, Renderer, framing_camera, hand_reach_spheres
 from ._render_mesh_kernels import (FIRST_BODY_LABEL, LABEL_SKY, LABEL_TABLE, MeshScene, mesh_background_kernel,
                                   mesh_render_kernel, place_bodies)
 from ._scene_meshes import STATIC, SceneGeometry, scene_geometry
-from ._hand_sim import check_device
-from ._stepper import cpu_threads, launch_stream, run_blocks
 
 __all__ = ["MeshRenderer", "make_renderer", "framing_spheres", "VIEW_DIRECTION", "LABEL_SKY", "LABEL_TABLE",
            "FIRST_BODY_LABEL"]
@@ -91,35 +89,25 @@ def framing_spheres(scene, geometry: SceneGeometry, samples: int = 256) -> tuple
     return np.concatenate([centres, pts]), np.concatenate([np.maximum(radii, 0.0), np.zeros(len(pts))])
 
 
-class MeshRenderer:
+class MeshRenderer(RayCaster):
     """Renders ``uint8 [N, H, W, 3]`` images of an articulated scene's body poses ``[N, B, 7]`` (see the module
     docstring). ``camera`` defaults to one along :data:`VIEW_DIRECTION` framing :func:`framing_spheres`;
     ``light`` is the direction towards the light; ``geometry`` defaults to ``scene_geometry(scene, asset)``."""
 
+    min_pixels_per_thread = MIN_PIXELS_PER_THREAD
+    pixel_kernel = mesh_render_kernel
+
     def __init__(self, scene, height: int = 64, width: int = 64, camera: Camera | None = None,
                  device: str | torch.device = "cpu", light: tuple[float, float, float] = (-0.4, -0.3, 1.0),
                  asset=None, geometry: SceneGeometry | None = None, tile: float = 0.05, fov: float = 45.0):
-        if int(height) <= 0 or int(width) <= 0:
-            raise ValueError(f"image size must be positive, got {height}x{width}")
-        self.scene, self.height, self.width = scene, int(height), int(width)
+        self._open(scene, height, width, device)
         self.geometry = geometry = geometry or scene_geometry(scene, asset)
         if camera is None:
             centres, radii = framing_spheres(scene, geometry)
             camera = framing_camera(centres, radii, -np.asarray(VIEW_DIRECTION), fov, self.width / self.height)
-        self.camera = camera
-        self.torch_device = check_device(device)
-        self.device = wp.device_from_torch(self.torch_device)
         self.num_bodies = len(geometry.body_names)
         self._build(geometry, tile)
-        self._view = camera_view(self.camera, self.height, self.width, light)
-        self._no_labels = wp.zeros((1, 1), dtype=wp.uint8, device=self.device)
-        npix = self.height * self.width
-        self._background = (wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=float, device=self.device),
-                            wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=wp.uint8, device=self.device))
-        wp.launch(mesh_background_kernel, dim=npix, inputs=[self._scene, self._view], outputs=list(self._background),
-                  device=self.device)
+        self._start(camera, light, mesh_background_kernel)
         self._placed = None
 
     def _build(self, geometry: SceneGeometry, tile: float) -> None:
@@ -185,45 +173,11 @@ class MeshRenderer:
             raise KeyError(f"no drawn body {name!r}; drawn: {', '.join(self.body_names)}")
         return FIRST_BODY_LABEL + self.body_names.index(name)
 
-    def render(self, body_pose: torch.Tensor, labels: bool = False):
-        """Images ``uint8 [N, H, W, 3]`` of body poses ``[N, B, 7]`` (any float dtype, no gradient);
-        with ``labels=True`` returns ``(images, labels uint8 [N, H, W])``."""
-        nb = self.num_bodies
-        if body_pose.dim() != 3 or body_pose.shape[1:] != (nb, 7):
-            raise ValueError(f"body_pose must have shape [N, {nb}, 7], got {tuple(body_pose.shape)}")
-        n, h, w = body_pose.shape[0], self.height, self.width
-        pose = wp.from_torch(body_pose.detach().to(self.torch_device, torch.float32).contiguous())
-        image = torch.empty(n, h, w, 3, dtype=torch.uint8, device=self.torch_device)
-        lab = torch.empty(n, h, w, dtype=torch.uint8, device=self.torch_device) if labels else None
-        w_image = wp.from_torch(image.view(n, h * w, 3), dtype=wp.uint8)
-        w_lab = wp.from_torch(lab.view(n, h * w), dtype=wp.uint8) if labels else self._no_labels
-        placed = self._placed_buffers(n)
-        stream = launch_stream(self.device)  # CUDA: torch's stream, ordered with the tensors around the launches
-        wp.launch(place_bodies, dim=(n, self._scene.num_drawn), inputs=[self._scene, pose], outputs=list(placed),
-                  device=self.device, stream=stream)
-
-        def launch(lo, hi):
-            wp.launch(mesh_render_kernel, dim=hi - lo,
-                      inputs=[self._scene, self._view, *placed, *self._background, lo],
-                      outputs=[w_image, w_lab, int(labels)], device=self.device, stream=stream)
-
-        total = n * h * w
-        if total:
-            threads = cpu_threads() if self.device.is_cpu else 1
-            blocks = max(1, min(threads, total // MIN_PIXELS_PER_THREAD))
-            bounds = [round(i * total / blocks) for i in range(blocks + 1)]
-            run_blocks(launch, list(zip(bounds[:-1], bounds[1:])))
-        return (image, lab) if labels else image
-
-    def render_state(self, sim, joint_q: torch.Tensor, labels: bool = False):
-        """Render states ``joint_q [N, nq]`` of ``sim`` (an
-        :class:`~dexmots_rl.sim._articulated.ArticulatedSimulator`)."""
-        pose, _ = sim.observe(joint_q.detach())
-        return self.render(pose, labels=labels)
-
-    def _placed_buffers(self, n: int):
+    def _place(self, pose, n: int, stream) -> list:
         if self._placed is None or self._placed[0].shape[0] != n:
             shape = (n, self._scene.num_drawn)
             self._placed = (wp.empty(shape, dtype=wp.transform, device=self.device),
                             wp.empty(shape, dtype=wp.vec4, device=self.device))
-        return self._placed
+        wp.launch(place_bodies, dim=(n, self._scene.num_drawn), inputs=[self._scene, pose], outputs=list(self._placed),
+                  device=self.device, stream=stream)
+        return list(self._placed)

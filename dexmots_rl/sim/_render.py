@@ -60,7 +60,7 @@ from ._render_kernels import (
 from ._hand_sim import check_device
 from ._stepper import cpu_threads, launch_stream, run_blocks
 
-__all__ = ["Camera", "Renderer", "default_camera", "framing_camera", "camera_view", "reach_spheres",
+__all__ = ["Camera", "RayCaster", "Renderer", "default_camera", "framing_camera", "camera_view", "reach_spheres",
            "hand_reach_spheres", "LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT"]
 
 MIN_PIXELS_PER_THREAD = 16384  # below this a second CPU thread costs more than it saves
@@ -212,21 +212,87 @@ def _segments(scene: SceneModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     return (np.array(seg_a), np.array(seg_b), np.array(seg_r), np.array(seg_body, np.int32), np.array(seg_col))
 
 
-class Renderer:
+class RayCaster:
+    """What both renderers share (this module's :class:`Renderer`, :class:`~._mesh_render.MeshRenderer`): the image
+    size and device, the camera's view, the background computed once, and :meth:`render`, which places the bodies
+    of every world (:meth:`_place`) and launches the pixel kernel over blocks of pixels, one CPU thread each."""
+
+    min_pixels_per_thread: int  # below this a second CPU thread costs more than it saves
+    pixel_kernel: object  # one pixel of one world: (scene, view, placed..., background..., p0) -> image, labels
+    num_bodies: int  # B of the body_pose [N, B, 7] it draws
+
+    def _open(self, scene, height: int, width: int, device) -> None:
+        if int(height) <= 0 or int(width) <= 0:
+            raise ValueError(f"image size must be positive, got {height}x{width}")
+        self.scene, self.height, self.width = scene, int(height), int(width)
+        self.torch_device = check_device(device)
+        self.device = wp.device_from_torch(self.torch_device)
+
+    def _start(self, camera: Camera, light, background) -> None:
+        """Fix the camera and compute each pixel's ray and the background behind the scene (``background``: its
+        kernel) once; needs ``self._scene`` built."""
+        self.camera = camera
+        self._view = camera_view(camera, self.height, self.width, light)
+        self._no_labels = wp.zeros((1, 1), dtype=wp.uint8, device=self.device)
+        npix = self.height * self.width
+        self._background = (wp.empty(npix, dtype=wp.vec3, device=self.device),
+                            wp.empty(npix, dtype=float, device=self.device),
+                            wp.empty(npix, dtype=wp.vec3, device=self.device),
+                            wp.empty(npix, dtype=wp.uint8, device=self.device))
+        wp.launch(background, dim=npix, inputs=[self._scene, self._view], outputs=list(self._background),
+                  device=self.device)
+
+    def _place(self, pose, n: int, stream) -> list:
+        """Launch what places the drawn bodies of ``n`` worlds from ``pose``; the pixel kernel's inputs between the
+        view and the background."""
+        raise NotImplementedError
+
+    def render(self, body_pose: torch.Tensor, labels: bool = False):
+        """Images ``uint8 [N, H, W, 3]`` of body poses ``[N, B, 7]`` (any float dtype, no gradient);
+        with ``labels=True`` returns ``(images, labels uint8 [N, H, W])``."""
+        nb = self.num_bodies
+        if body_pose.dim() != 3 or body_pose.shape[1:] != (nb, 7):
+            raise ValueError(f"body_pose must have shape [N, {nb}, 7], got {tuple(body_pose.shape)}")
+        n, h, w = body_pose.shape[0], self.height, self.width
+        pose = wp.from_torch(body_pose.detach().to(self.torch_device, torch.float32).contiguous())
+        image = torch.empty(n, h, w, 3, dtype=torch.uint8, device=self.torch_device)
+        lab = torch.empty(n, h, w, dtype=torch.uint8, device=self.torch_device) if labels else None
+        w_image = wp.from_torch(image.view(n, h * w, 3), dtype=wp.uint8)
+        w_lab = wp.from_torch(lab.view(n, h * w), dtype=wp.uint8) if labels else self._no_labels
+        stream = launch_stream(self.device)  # CUDA: torch's stream, ordered with the tensors around the launches
+        placed = self._place(pose, n, stream)
+
+        def launch(lo, hi):
+            wp.launch(self.pixel_kernel, dim=hi - lo, inputs=[self._scene, self._view, *placed, *self._background, lo],
+                      outputs=[w_image, w_lab, int(labels)], device=self.device, stream=stream)
+
+        total = n * h * w
+        if total:
+            threads = cpu_threads() if self.device.is_cpu else 1
+            blocks = max(1, min(threads, total // self.min_pixels_per_thread))
+            bounds = [round(i * total / blocks) for i in range(blocks + 1)]
+            run_blocks(launch, list(zip(bounds[:-1], bounds[1:])))
+        return (image, lab) if labels else image
+
+    def render_state(self, sim, joint_q: torch.Tensor, labels: bool = False):
+        """Render states ``joint_q [N, nq]`` of ``sim`` (the simulator of this renderer's scene)."""
+        pose, _ = sim.observe(joint_q.detach())
+        return self.render(pose, labels=labels)
+
+
+class Renderer(RayCaster):
     """Renders ``uint8 [N, H, W, 3]`` images of body poses ``[N, B, 7]`` (see the module docstring).
 
     ``camera`` defaults to :func:`default_camera`; ``light`` is the direction towards the light.
     """
 
+    min_pixels_per_thread = MIN_PIXELS_PER_THREAD
+    pixel_kernel = render_kernel
+
     def __init__(self, scene: SceneModel, height: int = 64, width: int = 64, camera: Camera | None = None,
                  device: str | torch.device = "cpu", floor_z: float = 0.0, tile: float = 0.2,
                  light: tuple[float, float, float] = (-0.4, -0.3, 1.0)):
-        if int(height) <= 0 or int(width) <= 0:
-            raise ValueError(f"image size must be positive, got {height}x{width}")
-        self.scene, self.height, self.width = scene, int(height), int(width)
-        self.camera = camera or default_camera(scene, aspect=self.width / self.height)
-        self.torch_device = check_device(device)
-        self.device = wp.device_from_torch(self.torch_device)
+        self._open(scene, height, width, device)
         a, b, r, body, col = _segments(scene)
 
         def arr(x, dtype):
@@ -251,58 +317,16 @@ class Renderer:
         sc.sdf_cell = float(scene.object_sdf_cell)
         sc.floor_z, sc.tile = float(floor_z), float(tile)
         self._scene = sc
-        self._view = camera_view(self.camera, self.height, self.width, light)
-        self._no_labels = wp.zeros((1, 1), dtype=wp.uint8, device=self.device)
-        npix = self.height * self.width
-        self._background = (wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=float, device=self.device),
-                            wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=wp.uint8, device=self.device))
-        wp.launch(background_kernel, dim=npix, inputs=[self._scene, self._view], outputs=list(self._background),
-                  device=self.device)
+        self._start(camera or default_camera(scene, aspect=self.width / self.height), light, background_kernel)
         self._num_segments, self._segs = len(r), None
+        self.num_bodies = scene.num_hand_dofs + 1
 
-    def render(self, body_pose: torch.Tensor, labels: bool = False):
-        """Images ``uint8 [N, H, W, 3]`` of body poses ``[N, B, 7]`` (any float dtype, no gradient);
-        with ``labels=True`` returns ``(images, labels uint8 [N, H, W])``."""
-        nb = self.scene.num_hand_dofs + 1
-        if body_pose.dim() != 3 or body_pose.shape[1:] != (nb, 7):
-            raise ValueError(f"body_pose must have shape [N, {nb}, 7], got {tuple(body_pose.shape)}")
-        n, h, w = body_pose.shape[0], self.height, self.width
-        pose = wp.from_torch(body_pose.detach().to(self.torch_device, torch.float32).contiguous())
-        image = torch.empty(n, h, w, 3, dtype=torch.uint8, device=self.torch_device)
-        lab = torch.empty(n, h, w, dtype=torch.uint8, device=self.torch_device) if labels else None
-        w_image = wp.from_torch(image.view(n, h * w, 3), dtype=wp.uint8)
-        w_lab = wp.from_torch(lab.view(n, h * w), dtype=wp.uint8) if labels else self._no_labels
-        total = n * h * w
-        segs = self._segment_buffers(n)
-        stream = launch_stream(self.device)  # CUDA: torch's stream, ordered with the tensors around the launches
-        wp.launch(place_segments, dim=(n, self._num_segments), inputs=[self._scene, pose], outputs=list(segs),
-                  device=self.device, stream=stream)
-
-        def launch(lo, hi):
-            wp.launch(render_kernel, dim=hi - lo, inputs=[self._scene, self._view, pose, *segs, *self._background, lo],
-                      outputs=[w_image, w_lab, int(labels)], device=self.device, stream=stream)
-
-        if total:
-            run_blocks(launch, self._blocks(total))
-        return (image, lab) if labels else image
-
-    def render_state(self, sim, joint_q: torch.Tensor, labels: bool = False):
-        """Render states ``joint_q [N, nq]`` of ``sim`` (a :class:`~dexmots_rl.sim.Simulator`)."""
-        pose, _ = sim.observe(joint_q.detach())
-        return self.render(pose, labels=labels)
-
-    def _segment_buffers(self, n: int):
+    def _place(self, pose, n: int, stream) -> list:
         if self._segs is None or self._segs[0].shape[0] != n:
             shape = (n, self._num_segments)
             self._segs = (wp.empty(shape, dtype=wp.vec3, device=self.device),
                           wp.empty(shape, dtype=wp.vec3, device=self.device),
                           wp.empty(shape, dtype=wp.vec4, device=self.device))
-        return self._segs
-
-    def _blocks(self, total: int) -> list[tuple[int, int]]:
-        threads = cpu_threads() if self.device.is_cpu else 1
-        blocks = max(1, min(threads, total // MIN_PIXELS_PER_THREAD))
-        bounds = [round(i * total / blocks) for i in range(blocks + 1)]
-        return list(zip(bounds[:-1], bounds[1:]))
+        wp.launch(place_segments, dim=(n, self._num_segments), inputs=[self._scene, pose], outputs=list(self._segs),
+                  device=self.device, stream=stream)
+        return [pose, *self._segs]

@@ -12,7 +12,8 @@ import warp as wp
 from ._constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
 
 __all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
-           "background_kernel", "render_kernel"]
+           "background_kernel", "render_kernel", "shade", "pixel_ray", "plane_distance", "world_pixel", "sphere_span", "checker", "sky_color",
+           "write_backdrop", "write_pixel"]
 
 wp.set_module_options({"enable_backward": False})
 
@@ -256,11 +257,10 @@ def shade(albedo: wp.vec3, normal: wp.vec3, light: wp.vec3, two_sided: float) ->
     return albedo * (0.35 + 0.65 * lam)
 
 
-@wp.kernel
-def background_kernel(sc: RenderScene, view: View, rays: wp.array(dtype=wp.vec3), depth: wp.array(dtype=float),
-                      color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
-    """The static part, once per camera: each pixel's ray, and the floor (or sky) behind the scene."""
-    p = wp.tid()
+@wp.func
+def pixel_ray(view: View, rays: wp.array(dtype=wp.vec3), p: int) -> wp.vec3:
+    """The unit direction of pixel ``p``'s ray (row-major pixels, the pinhole at ``view.pos``), also stored in
+    ``rays[p]`` (the pixel kernels read it there)."""
     x = p % view.width
     y = p / view.width
     aspect = float(view.width) / float(view.height)
@@ -268,21 +268,85 @@ def background_kernel(sc: RenderScene, view: View, rays: wp.array(dtype=wp.vec3)
     sy = (1.0 - 2.0 * (float(y) + 0.5) / float(view.height)) * view.tan_half
     rd = wp.normalize(view.forward + sx * view.right + sy * view.up)
     rays[p] = rd
+    return rd
+
+
+@wp.func
+def world_pixel(view: View, pid: int):
+    """(world, pixel) of pixel kernel thread ``pid`` = world * (height * width) + pixel."""
+    npix = view.width * view.height
+    w = pid / npix
+    return w, pid - w * npix
+
+
+@wp.func
+def sphere_span(ro: wp.vec3, rd: wp.vec3, sphere: wp.vec4) -> wp.vec2:
+    """(b, h) of the unit ray ``ro + t rd`` against a sphere (centre, radius): it meets the sphere where h >= 0,
+    at t = -b -+ sqrt(h)."""
+    oc = ro - wp.vec3(sphere[0], sphere[1], sphere[2])
+    bb = wp.dot(oc, rd)
+    return wp.vec2(bb, bb * bb - (wp.dot(oc, oc) - sphere[3] * sphere[3]))
+
+
+@wp.func
+def plane_distance(ro: wp.vec3, rd: wp.vec3, z: float) -> float:
+    """Where the ray ``ro + t rd`` meets the horizontal plane at height ``z`` from above: t, or -1 (never)."""
     t = float(-1.0)
     if rd[2] < -1.0e-6:
-        t = (sc.floor_z - view.pos[2]) / rd[2]
-    if t > 0.0:
-        q = view.pos + t * rd
-        check = (int(wp.floor(q[0] / sc.tile)) + int(wp.floor(q[1] / sc.tile))) % 2
-        g = 0.55 + 0.07 * float(check * check)
+        t = (z - ro[2]) / rd[2]
+    return t
+
+
+@wp.func
+def checker(q: wp.vec3, tile: float) -> int:
+    """1 on every other ``tile`` square of the horizontal plane (where ``q`` stands), else 0."""
+    check = (int(wp.floor(q[0] / tile)) + int(wp.floor(q[1] / tile))) % 2
+    return check * check
+
+
+@wp.func
+def sky_color(rd: wp.vec3) -> wp.vec3:
+    """The sky's gradient along a ray that meets nothing."""
+    return wp.lerp(wp.vec3(0.75, 0.8, 0.85), wp.vec3(0.45, 0.6, 0.8), wp.clamp(0.5 + 0.5 * rd[2], 0.0, 1.0))
+
+
+@wp.func
+def write_backdrop(depth: wp.array(dtype=float), color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8),
+                   p: int, rd: wp.vec3, light: wp.vec3, t: float, hit: bool, albedo: wp.vec3, hit_label: int):
+    """Pixel ``p``'s background: the horizontal surface at distance ``t`` where ``hit`` (lit from above), else the
+    sky."""
+    if hit:
         depth[p] = t
-        color[p] = shade(wp.vec3(g, g, g), wp.vec3(0.0, 0.0, 1.0), view.light, 0.0)
-        label[p] = wp.uint8(LABEL_FLOOR)
+        color[p] = shade(albedo, wp.vec3(0.0, 0.0, 1.0), light, 0.0)
+        label[p] = wp.uint8(hit_label)
     else:
-        sky = wp.clamp(0.5 + 0.5 * rd[2], 0.0, 1.0)
         depth[p] = 1.0e30
-        color[p] = wp.lerp(wp.vec3(0.75, 0.8, 0.85), wp.vec3(0.45, 0.6, 0.8), sky)
+        color[p] = sky_color(rd)
         label[p] = wp.uint8(LABEL_SKY)
+
+
+@wp.func
+def write_pixel(image: wp.array3d(dtype=wp.uint8), labels: wp.array2d(dtype=wp.uint8), w: int, p: int,
+                color: wp.vec3, write_labels: int, label: int, bg_label: wp.uint8):
+    """Pixel ``p`` of world ``w``: its colour as bytes and, with ``write_labels``, its label (0: the background's)."""
+    for c in range(3):
+        image[w, p, c] = wp.uint8(int(wp.clamp(color[c], 0.0, 1.0) * 255.0 + 0.5))
+    if write_labels != 0:
+        if label == 0:
+            labels[w, p] = bg_label
+        else:
+            labels[w, p] = wp.uint8(label)
+
+
+@wp.kernel
+def background_kernel(sc: RenderScene, view: View, rays: wp.array(dtype=wp.vec3), depth: wp.array(dtype=float),
+                      color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
+    """The static part, once per camera: each pixel's ray, and the floor (or sky) behind the scene."""
+    p = wp.tid()
+    rd = pixel_ray(view, rays, p)
+    t = plane_distance(view.pos, rd, sc.floor_z)
+    g = 0.55 + 0.07 * float(checker(view.pos + t * rd, sc.tile))
+    write_backdrop(depth, color, label, p, rd, view.light, t, t > 0.0, wp.vec3(g, g, g), LABEL_FLOOR)
 
 
 @wp.kernel
@@ -292,10 +356,7 @@ def render_kernel(sc: RenderScene, view: View, pose: wp.array3d(dtype=float), se
                   bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
                   labels: wp.array2d(dtype=wp.uint8), write_labels: int):
     """One pixel of one world: thread p0 + tid = world * (height * width) + pixel."""
-    pid = p0 + wp.tid()
-    npix = view.width * view.height
-    w = pid / npix
-    p = pid - w * npix
+    w, p = world_pixel(view, p0 + wp.tid())
     ro = view.pos
     rd = rays[p]
     best = bg_depth[p]
@@ -304,10 +365,7 @@ def render_kernel(sc: RenderScene, view: View, pose: wp.array3d(dtype=float), se
     albedo = wp.vec3(0.0)
     # hand: capsules between the links' sample points (cheap reject on their bounding spheres first)
     for s in range(sc.num_segments):
-        sb = seg_bound[w, s]
-        oc = ro - wp.vec3(sb[0], sb[1], sb[2])
-        bb = wp.dot(oc, rd)
-        if bb * bb - (wp.dot(oc, oc) - sb[3] * sb[3]) >= 0.0:
+        if sphere_span(ro, rd, seg_bound[w, s])[1] >= 0.0:
             a = seg_a[w, s]
             c = seg_b[w, s]
             t = ray_capsule(ro, rd, a, c, sc.seg_r[s])
@@ -337,10 +395,4 @@ def render_kernel(sc: RenderScene, view: View, pose: wp.array3d(dtype=float), se
     color = bg_color[p]
     if label != 0:
         color = shade(albedo, normal, view.light, 0.5)
-    for c in range(3):
-        image[w, p, c] = wp.uint8(int(wp.clamp(color[c], 0.0, 1.0) * 255.0 + 0.5))
-    if write_labels != 0:
-        if label == 0:
-            labels[w, p] = bg_label[p]
-        else:
-            labels[w, p] = wp.uint8(label)
+    write_pixel(image, labels, w, p, color, write_labels, label, bg_label[p])

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._render_kernels import View, shade
+from ._render_kernels import (LABEL_SKY, View, checker, pixel_ray, plane_distance, shade, sphere_span, world_pixel,
+                              write_backdrop, write_pixel)
 
 __all__ = ["LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL", "MeshScene", "mesh_background_kernel",
            "place_bodies", "mesh_render_kernel"]
 
 wp.set_module_options({"enable_backward": False})
 
-LABEL_SKY, LABEL_TABLE = 0, 1
+LABEL_TABLE = 1  # the sky is 0 (the other renderer's)
 FIRST_BODY_LABEL = 2  # drawn body k has label FIRST_BODY_LABEL + k
 
 
@@ -43,29 +44,15 @@ def mesh_background_kernel(sc: MeshScene, view: View, rays: wp.array(dtype=wp.ve
                            color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
     """The static part, once per camera: each pixel's ray, and the table (or the sky) behind the scene."""
     p = wp.tid()
-    x = p % view.width
-    y = p / view.width
-    aspect = float(view.width) / float(view.height)
-    sx = (2.0 * (float(x) + 0.5) / float(view.width) - 1.0) * view.tan_half * aspect
-    sy = (1.0 - 2.0 * (float(y) + 0.5) / float(view.height)) * view.tan_half
-    rd = wp.normalize(view.forward + sx * view.right + sy * view.up)
-    rays[p] = rd
+    rd = pixel_ray(view, rays, p)
     t = float(-1.0)
-    if sc.has_table != 0 and rd[2] < -1.0e-6:
-        t = (sc.table_z - view.pos[2]) / rd[2]
+    if sc.has_table != 0:
+        t = plane_distance(view.pos, rd, sc.table_z)
     q = view.pos + t * rd
-    if t > 0.0 and q[0] >= sc.table_lo[0] and q[0] <= sc.table_hi[0] and q[1] >= sc.table_lo[1] \
-            and q[1] <= sc.table_hi[1]:
-        check = (int(wp.floor(q[0] / sc.tile)) + int(wp.floor(q[1] / sc.tile))) % 2
-        depth[p] = t
-        color[p] = shade(sc.table_color * (1.0 - 0.08 * float(check * check)), wp.vec3(0.0, 0.0, 1.0), view.light,
-                         0.0)
-        label[p] = wp.uint8(LABEL_TABLE)
-    else:
-        sky = wp.clamp(0.5 + 0.5 * rd[2], 0.0, 1.0)
-        depth[p] = 1.0e30
-        color[p] = wp.lerp(wp.vec3(0.75, 0.8, 0.85), wp.vec3(0.45, 0.6, 0.8), sky)
-        label[p] = wp.uint8(LABEL_SKY)
+    on_table = t > 0.0 and q[0] >= sc.table_lo[0] and q[0] <= sc.table_hi[0] and q[1] >= sc.table_lo[1] \
+        and q[1] <= sc.table_hi[1]
+    write_backdrop(depth, color, label, p, rd, view.light, t, on_table,
+                   sc.table_color * (1.0 - 0.08 * float(checker(q, sc.tile))), LABEL_TABLE)
 
 
 @wp.kernel
@@ -90,10 +77,7 @@ def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp
                        bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
                        labels: wp.array2d(dtype=wp.uint8), write_labels: int):
     """One pixel of one world: thread p0 + tid = world * (height * width) + pixel."""
-    pid = p0 + wp.tid()
-    npix = view.width * view.height
-    w = pid / npix
-    p = pid - w * npix
+    w, p = world_pixel(view, p0 + wp.tid())
     ro = view.pos
     rd = rays[p]
     best = bg_depth[p]
@@ -101,10 +85,9 @@ def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp
     normal = wp.vec3(0.0, 0.0, 1.0)
     albedo = wp.vec3(0.0)
     for k in range(sc.num_drawn):
-        sb = bound[w, k]
-        oc = ro - wp.vec3(sb[0], sb[1], sb[2])
-        bb = wp.dot(oc, rd)
-        h = bb * bb - (wp.dot(oc, oc) - sb[3] * sb[3])
+        span = sphere_span(ro, rd, bound[w, k])
+        bb = span[0]
+        h = span[1]
         # the ray meets the bounding sphere in front of the camera, nearer than what is hit so far
         if h >= 0.0 and -bb + wp.sqrt(h) > 0.0 and -bb - wp.sqrt(h) < best:
             inv = inv_xform[w, k]
@@ -115,14 +98,10 @@ def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp
                 normal = wp.quat_rotate_inv(wp.transform_get_rotation(inv), q.normal)
                 albedo = sc.face_color[sc.face_start[k] + q.face]
     color = bg_color[p]
+    label = int(0)  # the background's
     if hit_body >= 0:
         if wp.dot(normal, rd) > 0.0:  # the face seen from behind (an open or thin mesh): light its other side
             normal = -normal
         color = shade(albedo, normal, view.light, 0.5)
-    for c in range(3):
-        image[w, p, c] = wp.uint8(int(wp.clamp(color[c], 0.0, 1.0) * 255.0 + 0.5))
-    if write_labels != 0:
-        if hit_body < 0:
-            labels[w, p] = bg_label[p]
-        else:
-            labels[w, p] = wp.uint8(FIRST_BODY_LABEL + hit_body)
+        label = FIRST_BODY_LABEL + hit_body
+    write_pixel(image, labels, w, p, color, write_labels, label, bg_label[p])
