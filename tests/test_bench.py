@@ -25,6 +25,7 @@ def test_throughput_bench_reports_every_rate_in_contact(task):
         assert math.isfinite(row[key]) and row[key] > 0, key
     assert row["fwd_steps_per_s"] > row["fwdbwd_steps_per_s"]  # the backward pass is not free
     assert row["fwdbwd_cost"] == pytest.approx(row["fwd_steps_per_s"] / row["fwdbwd_steps_per_s"])
+    assert row["fwdbwd_cost_per_cpu_s"] == pytest.approx(row["fwd_steps_per_cpu_s"] / row["fwdbwd_steps_per_cpu_s"])
     assert row["ratio_vs_mujoco"] == pytest.approx(row["fwd_steps_per_s"] / row["mujoco_steps_per_s"])
     assert row["ratio_vs_mujoco_per_cpu_s"] == pytest.approx(row["fwd_steps_per_cpu_s"] / row["mujoco_steps_per_cpu_s"])
     assert ("object" in result) == (task == "spray_bottle")

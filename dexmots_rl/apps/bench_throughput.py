@@ -3,14 +3,15 @@
 Any registered task runs: its env's scene (the knob and cube MJCFs; a tool task's or ``operate``'s hand and
 library object on its table, whose MJCF MuJoCo loads from ``scene.path``), contact law and bench poses
 (:meth:`~dexmots_rl.envs.DexEnv.bench_poses`). Protocol, identical for both simulators: every world starts
-from the task's open pose with the closing action applied, is stepped ``settle_steps`` env steps until the fingers touch the object, and the timed
-work is repeated chunks of ``chunk_steps`` env steps restarted from that contact state (so the whole
+from the task's open pose (a tool task: its pre-grasp) with the closing action applied, is stepped
+``settle_steps`` env steps until the fingers touch the object, and the timed work is repeated chunks of ``chunk_steps`` env steps restarted from that contact state (so the whole
 measured window is in contact; the fraction of steps with contact is measured and reported). One env
 step is ``substeps`` physics steps of the MJCF's timestep. Every rate is given per wall second
 (``*_steps_per_s``) and per CPU-second of this process, all its threads counted (``*_steps_per_cpu_s``: core
 for core, whatever the thread counts ``threads`` and ``mujoco_threads``; on a shared machine it moves less
 than the wall rate); ``ratio_vs_mujoco`` and ``ratio_vs_mujoco_per_cpu_s`` are ours forward over MuJoCo's, and
-``fwdbwd_cost`` the cost of a forward + backward step in forward steps (wall).
+``fwdbwd_cost`` (``fwdbwd_cost_per_cpu_s``) the cost of a forward + backward step in forward steps by the wall
+clock (by CPU time).
 
 * ``fwd``: ``Simulator.step`` with no input requiring grad (no tape).
 * ``fwdbwd``: each step's ``joint_q`` requires grad; step, then backward of the sum of all outputs.
@@ -188,7 +189,8 @@ class MujocoBench:
 
 ROW_KEYS = ("num_envs", "fwd_steps_per_s", "fwd_steps_per_cpu_s", "fwdbwd_steps_per_s", "fwdbwd_steps_per_cpu_s",
             "mujoco_steps_per_s", "mujoco_steps_per_cpu_s", "ratio_vs_mujoco", "ratio_vs_mujoco_per_cpu_s",
-            "fwdbwd_cost", "contact_fraction", "mujoco_contact_fraction", "taped_fwd_ms", "reverse_ms")
+            "fwdbwd_cost", "fwdbwd_cost_per_cpu_s", "contact_fraction", "mujoco_contact_fraction", "taped_fwd_ms",
+            "reverse_ms")
 
 
 def throughput_row(ours: SimBench, mj: MujocoBench | None, min_time: float, sync) -> dict:
@@ -196,14 +198,17 @@ def throughput_row(ours: SimBench, mj: MujocoBench | None, min_time: float, sync
     n = ours.sim.num_worlds
     row = {"num_envs": n, "contact_fraction": ours.contact_fraction(),
            "mujoco_contact_fraction": mj.contact_fraction() if mj else None}
-    timed = [("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk)] + ([("mujoco", mj.chunk)] if mj else [])
+    timed = [("fwd", ours.forward_chunk), ("fwdbwd", ours.forward_backward_chunk)]
+    timed += [("mujoco", mj.chunk)] if mj else []
     for name, fn in timed:
         fn()  # warm-up: builds replay plans / tapes / thread pools outside the timed window
         row[f"{name}_steps_per_s"], row[f"{name}_steps_per_cpu_s"] = measure_rates(fn, min_time, sync)
         log.info("num_envs=%d %s: %.0f env-steps/s, %.0f per CPU-second", n, name, row[f"{name}_steps_per_s"],
                  row[f"{name}_steps_per_cpu_s"])
     row.update(ours.split_ms(min_time, sync))
-    row["fwdbwd_cost"] = row["fwd_steps_per_s"] / row["fwdbwd_steps_per_s"]  # a forward + backward step, in forward steps
+    # a forward + backward step in forward steps, by the wall clock and by CPU time
+    row["fwdbwd_cost"] = row["fwd_steps_per_s"] / row["fwdbwd_steps_per_s"]
+    row["fwdbwd_cost_per_cpu_s"] = row["fwd_steps_per_cpu_s"] / row["fwdbwd_steps_per_cpu_s"]
     if mj is not None:
         row["ratio_vs_mujoco"] = row["fwd_steps_per_s"] / row["mujoco_steps_per_s"]
         row["ratio_vs_mujoco_per_cpu_s"] = row["fwd_steps_per_cpu_s"] / row["mujoco_steps_per_cpu_s"]

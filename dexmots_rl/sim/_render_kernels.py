@@ -12,8 +12,8 @@ import warp as wp
 from ._constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
 
 __all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
-           "background_kernel", "render_kernel", "shade", "pixel_ray", "plane_distance", "world_pixel", "sphere_span", "checker", "sky_color",
-           "write_backdrop", "write_pixel"]
+           "background_kernel", "render_kernel", "shade", "pixel_ray", "plane_distance", "world_pixel", "sphere_span",
+           "checker", "sky_color", "write_backdrop", "write_pixel"]
 
 wp.set_module_options({"enable_backward": False})
 
