@@ -4,8 +4,9 @@ Any registered task runs: its env's scene (the knob and cube MJCFs; a tool task'
 library object on its table, whose MJCF MuJoCo loads from ``scene.path``), contact law and bench poses
 (:meth:`~dexmots_rl.envs.DexEnv.bench_poses`). Protocol, identical for both simulators: every world starts
 from the task's open pose (a tool task: its pre-grasp) with the closing action applied, is stepped
-``settle_steps`` env steps until the fingers touch the object, and the timed work is repeated chunks of ``chunk_steps`` env steps restarted from that contact state (so the whole
-measured window is in contact; the fraction of steps with contact is measured and reported). One env
+``settle_steps`` env steps until the fingers touch the object, and the timed work is repeated chunks of
+``chunk_steps`` env steps restarted from that contact state (so the whole measured window is in contact; the
+fraction of steps with contact is measured and reported: MuJoCo's counts contacts of the hand only). One env
 step is ``substeps`` physics steps of the MJCF's timestep. Every rate is given per wall second
 (``*_steps_per_s``) and per CPU-second of this process, all its threads counted (``*_steps_per_cpu_s``: core
 for core, whatever the thread counts ``threads`` and ``mujoco_threads``; on a shared machine it moves less
