@@ -49,7 +49,8 @@ def test_throughput_bench_all_runs_every_registered_task_into_one_table(monkeypa
     result = run(["throughput", "--all", "--num-envs", "2", "4", "--substeps", "8", "--quiet"])
     assert result["tasks"] == list_tasks() and result["substeps"] == 8
     assert [(r["task"], r["num_envs"]) for r in result["rows"]] == [(t, n) for t in list_tasks() for n in (2, 4)]
-    assert format_table(result).splitlines()[1].split()[:3] == ["task", "dt", "num_envs"]
+    assert all(r["object"] is None for r in result["rows"])  # one_task names none
+    assert format_table(result).splitlines()[1].split()[:4] == ["task", "object", "dt", "num_envs"]
 
 
 @pytest.mark.slow  # the benchmark at full size

@@ -246,10 +246,11 @@ def run_throughput(task: str = "screw_claw", num_envs=(1, 16, 64, 256), device: 
 
 
 def run_throughput_all(tasks, **options) -> dict:
-    """:func:`run_throughput` of each task in ``tasks``, one row per (task, world count) (``task`` and ``dt`` in
-    each row), the options shared."""
+    """:func:`run_throughput` of each task in ``tasks``, one row per (task, world count) (``task``, its ``object``
+    (None: a knob or cube task) and ``dt`` in each row), the options shared."""
     results = [run_throughput(task, **options) for task in tasks]
     first = results[0]
     return {"tasks": list(tasks), "device": first["device"], "substeps": first["substeps"], "obs": first["obs"],
             "threads": first["threads"], "mujoco_threads": first["mujoco_threads"],
-            "rows": [{"task": r["task"], "dt": r["dt"], **row} for r in results for row in r["rows"]]}
+            "rows": [{"task": r["task"], "object": r.get("object"), "dt": r["dt"], **row}
+                     for r in results for row in r["rows"]]}
