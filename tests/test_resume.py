@@ -1,4 +1,4 @@
-"""Resume of every method (``resume=<run_dir>``): a run stopped by ``stop_after`` and resumed ends exactly as
+"""Resume of every learning method (``resume=<run_dir>``): a run stopped by ``stop_after`` and resumed ends exactly as
 the same run uninterrupted: the same ``metrics.jsonl`` rows, final evaluation and weights, bit for bit (CPU)."""
 
 from __future__ import annotations
@@ -22,6 +22,10 @@ ALGOS = {
     "pgdm": ["algo=pgdm", "algo.frames_per_batch=24", "algo.total_frames=96", "algo.minibatch_size=12",
              "algo.hidden=[16]"],
     # random actions for the first 2 batches: the interruption falls inside them
+    # a periodic evaluation falls on the interruption (the uninterrupted run evaluates there too)
+    "ahac": ["algo=ahac", "algo.iterations=4", "algo.horizon=8", "algo.horizon_min=4", "algo.horizon_max=8",
+             "algo.critic_iterations=2", "algo.critic_minibatches=2", "algo.hidden=[16]", "eval.every=2",
+             "eval.curve_episodes=1"],
     "sac": ["algo=sac", "algo.frames_per_batch=16", "algo.total_frames=64", "algo.init_random_frames=32",
             "algo.batch_size=8", "algo.hidden=[16]", "algo.buffer_size=40"],  # the buffer wraps around
 }
@@ -52,7 +56,8 @@ def _assert_same_tensors(a, b, where=""):
 
 # SAC stopped inside its random frames, and after them (its buffer full and wrapped around)
 @pytest.mark.parametrize("algo, stop_after, task", [("ppo", 2, "screw_claw"), ("pgdm", 2, "stapler"),
-                                                    ("sac", 1, "screw_claw"), ("sac", 3, "screw_claw")])
+                                                    ("sac", 1, "screw_claw"), ("sac", 3, "screw_claw"),
+                                                    ("ahac", 2, "screw_claw")])
 def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, stop_after, task):
     train(_cfg(algo, tmp_path / "straight", f"task={task}"))
     assert train(_cfg(algo, tmp_path / "split", f"task={task}", f"stop_after={stop_after}")) == {}

@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from dexmots_rl.algorithms.checkpoint import CheckpointError, load_checkpoint
 from dexmots_rl.algorithms.rundir import RunDirectory, RunDirLock
 from dexmots_rl.apps.train import CONFIG_DIR, run as train
+from test_resume import _cfg as resume_cfg
 from test_train import _cfg, _rows
 
 
@@ -153,8 +154,16 @@ def test_cli_resume_conflict_is_one_line_and_hydra_rewrites_nothing(tmp_path):
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, sig):
+def _signal_cfg(algo, run):
+    if algo == "shac":
+        return _cfg(run, "algo.iterations=5", "checkpoint_every=100")
+    return resume_cfg(algo, run, "checkpoint_every=100")  # four iterations
+
+
+# every learning method ends its iterations with the same loop, which takes the signal
+@pytest.mark.parametrize("algo, sig", [("shac", signal.SIGTERM), ("shac", signal.SIGINT), ("ppo", signal.SIGINT),
+                                       ("sac", signal.SIGTERM)])
+def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, algo, sig):
     log_row = RunDirectory.log
 
     def log_and_signal(self, row):
@@ -170,7 +179,7 @@ def test_signal_saves_a_checkpoint_and_returns_cleanly(tmp_path, monkeypatch, si
 
     previous = signal.signal(sig, outer)
     try:
-        result = train(_cfg(run, "algo.iterations=5", "checkpoint_every=100"))
+        result = train(_signal_cfg(algo, run))
         assert signal.getsignal(sig) is outer  # handlers restored
     finally:
         signal.signal(sig, previous)

@@ -7,6 +7,8 @@
   reward and action-bias warm start;
 * :mod:`.mpc` — predictive-sampling MPC with gradient refinement, evaluation only (``dexmots-train algo=mpc``);
 * :mod:`.registry` — name -> training function, config and policy loader of every method;
+* :mod:`.loop` — the end of every learning method's iterations and runs (row, budget, rollback, checkpoints,
+  evaluations, signals);
 * :mod:`.rundir` — the run directory every method writes (config, metrics, logs, checkpoints, lock, resume);
 * :mod:`.networks`, :mod:`.checkpoint`, :mod:`.evaluation`, :mod:`.budget`, :mod:`.best_policy`,
   :mod:`.distributed`, :mod:`.validation` — shared pieces.
@@ -16,5 +18,5 @@ Submodules are imported on use, so importing this package does not load the simu
 
 from __future__ import annotations
 
-__all__ = ["best_policy", "budget", "checkpoint", "common", "distributed", "evaluation", "mpc", "networks", "pgdm",
-           "ppo", "registry", "rundir", "sac", "shac", "validation"]
+__all__ = ["best_policy", "budget", "checkpoint", "common", "distributed", "evaluation", "loop", "mpc", "networks",
+           "pgdm", "ppo", "registry", "rundir", "sac", "shac", "validation"]

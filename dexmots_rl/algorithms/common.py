@@ -10,15 +10,13 @@
   *plain* task env (``evaluate_policy``, ``dexmots-eval``).
 * :func:`policy_from_data` — that policy rebuilt from a checkpoint (each baseline's loader in
   :mod:`.registry`).
-* :func:`batch_metrics`, :class:`CollectorLoop` — what every collector iteration ends with: the
-  ``metrics.jsonl`` row, the progress bar, the budget, checkpoints and evaluations through the run's
-  :class:`~.rundir.RunDirectory`, and the final evaluation.
+* :func:`batch_metrics`, :class:`CollectorLoop` — every method's loop end (:class:`~.loop.TrainingLoop`) fed
+  by a torchrl ``Collector``: a batch's row, its collection timed apart, the normaliser synced into the
+  deployable policy, SAC's replay buffer in the checkpoint.
 """
 
 from __future__ import annotations
 
-import logging
-import sys
 import time
 import warnings
 
@@ -30,16 +28,13 @@ from torchrl.envs import ClipTransform, RewardSum
 from torchrl.envs.transforms.vecnorm import VecNormV2
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
-from ..progress import progress_bar
 from ..envs import make_env
-from .budget import RunBudget, TrainingClock
-from .checkpoint import CheckpointError, restore_rng_states, rng_states
+from .checkpoint import CheckpointError
+from .loop import TrainingLoop
 from .rundir import RunDirectory
 
 __all__ = ["CollectorLoop", "ObsNorm", "RunningObsNorm", "batch_metrics", "deployable_policy", "load_replay_buffer",
            "make_train_env", "mlp", "policy_from_data", "replay_buffer_state", "sync_obs_norm", "tanh_gaussian_actor"]
-
-log = logging.getLogger(__name__)
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
@@ -173,18 +168,14 @@ def load_replay_buffer(buffer, state: dict) -> None:
     buffer.writer.load_state_dict(state["writer"])
 
 
-def batch_metrics(data, counters: dict) -> dict:
-    """The ``metrics.jsonl`` row of a collected batch ``[worlds, time]``: the counters, the mean step reward,
+def batch_metrics(data) -> dict:
+    """A collected batch's ``[worlds, time]`` entries of its ``metrics.jsonl`` row: the mean step reward,
     ``episode_success`` (the success flag at the last step of the episodes that ended in the batch; NaN when
     none did) and ``episode_reward`` (their return), and the mean of each reward term."""
     nxt = data.get("next")
     done = nxt.get("done").squeeze(-1)
     ended = int(done.sum())
     row = {
-        "iteration": counters["iteration"],
-        "env_steps": counters["env_steps"],
-        "wall_clock_s": round(counters["wall_clock_s"], 3),
-        "cpu_s": round(counters.get("cpu_s", 0.0), 3),
         "reward": float(nxt.get("reward").mean()),
         "episodes": ended,
         "episode_success": float(nxt.get("success").squeeze(-1)[done].float().mean()) if ended else float("nan"),
@@ -196,41 +187,59 @@ def batch_metrics(data, counters: dict) -> dict:
     return row
 
 
-class CollectorLoop:
-    """The end of every collector iteration of PPO, SAC and PGDM, and of their runs.
+class CollectorLoop(TrainingLoop):
+    """:class:`~.loop.TrainingLoop` for the methods a torchrl ``Collector`` feeds (PPO, SAC, PGDM).
 
-    The trainer iterates :meth:`batches` (the collector's batches, their collection timed apart) and counts
-    ``counters["iteration"]`` and ``counters["env_steps"]`` itself; :meth:`end_iteration`
-    then stops the clock for the row, logs the row (:func:`batch_metrics` + the method's statistics + the
-    iteration's CPU and wall seconds spent collecting and learning, ``collect_*`` / ``learn_*``),
-    checks the budget, writes a checkpoint every ``checkpoint_every`` iterations, at the end and at
-    ``stop_after``, runs the periodic evaluations (their time is not training time), and says whether to
-    stop. :meth:`finish` closes the collector and writes the final evaluation (``metrics.json``).
-    On resume (:attr:`.RunDirectory.start`), the counters continue the checkpoint's and :meth:`start`
-    loads the rest of its state (``replay_buffer``: SAC's, saved and restored too).
+    The trainer iterates :meth:`batches` (the collector's batches, their collection timed apart, until the
+    loop is done), counts ``counters["iteration"]`` and ``counters["env_steps"]`` itself and ends each
+    iteration with :meth:`end_batch`: the row is :func:`batch_metrics` + the method's statistics + the
+    iteration's CPU and wall seconds spent collecting and learning (``collect_*`` / ``learn_*``). The
+    deployable ``policy`` gets the normaliser's statistics before it is saved or evaluated; a checkpoint also
+    holds ``replay_buffer`` (SAC's), which :meth:`start` refills on resume.
     """
 
-    def __init__(self, run: RunDirectory, policy, vecnorm, iterations: int, replay_buffer=None):
-        self.run, self.cfg, self.policy, self.vecnorm, self.iterations = run, run.cfg, policy, vecnorm, iterations
-        self.replay_buffer, self.collector = replay_buffer, None
-        self.counters = {"iteration": 0, "env_steps": 0, "wall_clock_s": 0.0, "cpu_s": 0.0}
-        if run.start is not None:
-            self.counters.update(run.start["counters"])
-        self.stop_at = min(iterations, self.cfg.stop_after) if self.cfg.stop_after else iterations
-        self.budget, self.stopped_by, self.ended = RunBudget.from_config(self.cfg), None, False
-        self.bar = progress_bar(total=iterations, initial=self.counters["iteration"], disable=not self.cfg.progress,
-                        desc=f"{self.cfg.algo.name} {self.cfg.task.name}", file=sys.stderr)
-        self.clock = TrainingClock(self.counters)
+    def __init__(self, run: RunDirectory, env, policy, vecnorm, iterations: int, modules: dict, optimizers: dict,
+                 counters: dict | None = None, replay_buffer=None):
+        super().__init__(run, env, iterations, modules, optimizers, policy, counters=counters)
+        self.vecnorm, self.replay_buffer, self.collector = vecnorm, replay_buffer, None
         self._collected = (0.0, 0.0)  # the last batch's collection (CPU s, wall s)
         self._last = (self.counters["cpu_s"], self.counters["wall_clock_s"])  # training time at the last row
 
+    def frames_left(self, frames_per_batch: int) -> int:
+        """The frames the collector still has to collect: up to ``stop_after`` or the schedule's end."""
+        return max(0, self.stop_at - self.counters["iteration"]) * frames_per_batch
+
+    def start(self, collector) -> None:
+        """Call once ``collector`` (None: nothing left to collect) is built: building it resets the worlds,
+        which draws from the RNG streams and updates the normaliser. A fresh run keeps all that; a resumed
+        one goes on from its checkpoint (:meth:`.TrainingLoop.start`, and the replay buffer)."""
+        self.collector = collector
+        start = self.run.start
+        if self.replay_buffer is not None and start is not None:
+            if "replay_buffer" not in start:
+                raise CheckpointError(f"resume={self.cfg.resume}: the checkpoint holds no replay buffer (written "
+                                      "before SAC runs could resume); start a new run")
+            load_replay_buffer(self.replay_buffer, start["replay_buffer"])
+        if collector is None:
+            super().start(None)  # the modules and optimisers only: there are no worlds to go on with
+            return
+        carrier = self.current_worlds()
+        worlds = super().start(carrier)
+        if worlds is not carrier:
+            carrier.update_(worlds)
+            collector.update_policy_weights_()
+
+    def current_worlds(self) -> TensorDict | None:
+        # torchrl keeps the worlds' current TensorDict there between batches (not always the same object)
+        return None if self.collector is None else self.collector._carrier
+
     def batches(self, collector):
-        """``collector``'s batches (none for ``None``), each one's collection time measured apart from the
+        """``collector``'s batches until the loop is done, each one's collection measured apart from the
         learning that follows it (the rows' ``collect_cpu_s`` / ``learn_cpu_s``: ``dexmots-bench baselines``)."""
         if collector is None:
             return
         batches = iter(collector)
-        while True:
+        while not self.done:
             cpu, wall = time.process_time(), time.perf_counter()
             data = next(batches, None)
             if data is None:
@@ -238,93 +247,31 @@ class CollectorLoop:
             self._collected = (time.process_time() - cpu, time.perf_counter() - wall)
             yield data
 
-    def start(self, collector, modules: dict, optimizers: dict) -> None:
-        """Call once ``collector`` (None: nothing left to collect) is built: building it resets the worlds,
-        which draws from the RNG streams and updates the normaliser. A fresh run keeps all that; a resumed
-        one then takes the checkpoint's state of ``modules`` and ``optimizers`` (the names it saved them
-        under), the worlds where training stopped (mid-episode: the collector's next step continues them),
-        the replay buffer and both RNG streams, so it goes on exactly as the uninterrupted run."""
-        self.collector = collector
-        start = self.run.start
-        if start is None:
-            return
-        for name, module in modules.items():
-            module.load_state_dict(start["modules"][name])
-        for name, optimizer in optimizers.items():
-            optimizer.load_state_dict(start["optimizers"][name])
-        if self.replay_buffer is not None:
-            if "replay_buffer" not in start:
-                raise CheckpointError(f"resume={self.cfg.resume}: the checkpoint holds no replay buffer (written "
-                                      "before SAC runs could resume); start a new run")
-            load_replay_buffer(self.replay_buffer, start["replay_buffer"])
-        if collector is None:
-            return
-        if "env_state" not in start:  # an older checkpoint: the same networks, but the episodes start afresh
-            log.warning("resume=%s: the checkpoint predates saved episodes; they start afresh, so the run will "
-                        "not be the uninterrupted one", self.cfg.resume)
-            torch.set_rng_state(start["rng"]["torch"])
-            return
-        carrier = collector._carrier  # torchrl keeps the worlds' current TensorDict there between batches
-        carrier.update_(TensorDict.from_dict(start["env_state"], batch_size=carrier.batch_size, device=carrier.device))
-        collector.update_policy_weights_()
-        restore_rng_states(collector.env, start["rng"])
+    def end_batch(self, data, stats: dict) -> bool:
+        """:meth:`.TrainingLoop.end_iteration` of the collected batch ``data`` with the method's ``stats``."""
+        return self.end_iteration({**batch_metrics(data), **stats})
 
-    def _resume_state(self) -> dict:
-        """What :meth:`start` needs besides modules and optimizers, for the checkpoint."""
-        state = {}
-        if self.collector is not None:
-            state["env_state"] = self.collector._carrier.detach().to_dict()
-            state["rng"] = rng_states(self.collector.env)
-        if self.replay_buffer is not None:
-            state["replay_buffer"] = replay_buffer_state(self.replay_buffer)
-        return state
-
-    def frames_left(self, frames_per_batch: int) -> int:
-        """The frames the collector still has to collect: up to ``stop_after`` or the schedule's end."""
-        return max(0, self.stop_at - self.counters["iteration"]) * frames_per_batch
-
-    def progress(self) -> float:
-        """How far the run is to its end in [0, 1] (its schedule or its budget): linear decays follow it."""
-        return self.budget.progress(self.counters, self.counters["iteration"] / self.iterations)
-
-    def end_iteration(self, data, stats: dict, modules: dict, optimizers: dict) -> bool:
-        """Log the iteration of the collected batch ``data`` with the method's ``stats``, checkpoint
-        ``modules`` (``"policy"``, the deployable policy, is synced with the normaliser first) and
-        ``optimizers`` when due, evaluate when due; True when the run is over."""
+    def _timing(self) -> dict:
         counters = self.counters
-        self.clock.read(counters)
         (collect_cpu, collect_wall), (last_cpu, last_wall) = self._collected, self._last
         self._last = (counters["cpu_s"], counters["wall_clock_s"])
         # learning: the rest of the iteration since the last row (the method's updates, this loop's bookkeeping)
         timing = {"collect_cpu_s": collect_cpu, "collect_wall_s": collect_wall,
                   "learn_cpu_s": max(0.0, counters["cpu_s"] - last_cpu - collect_cpu),
                   "learn_wall_s": max(0.0, counters["wall_clock_s"] - last_wall - collect_wall)}
-        row = {**batch_metrics(data, counters), **stats, **{k: round(v, 4) for k, v in timing.items()}}
-        self.run.log(row)
-        self.bar.update(1)
-        self.bar.set_postfix(fps=f"{row['env_steps'] / max(row['wall_clock_s'], 1e-9):.0f}",
-                             reward=f"{row['reward']:.3f}", success=f"{row['episode_success']:.2f}")
-        self.stopped_by = self.budget.reached(counters)
-        self.ended = counters["iteration"] >= self.iterations or self.stopped_by is not None
-        stop = self.ended or counters["iteration"] >= self.stop_at
-        evaluate_now = self.cfg.eval.every and counters["iteration"] % self.cfg.eval.every == 0 and not self.ended
-        if stop or counters["iteration"] % self.cfg.checkpoint_every == 0 or evaluate_now:
-            sync_obs_norm(self.policy, self.vecnorm)
-            self.run.checkpoint(counters, modules, optimizers, **self._resume_state())
-            if evaluate_now:
-                with self.clock.paused():  # evaluation is not training time (the budget's clock)
-                    self.run.evaluate(self.policy, counters, final=False)
-        return stop
+        return {k: round(v, 4) for k, v in timing.items()}
 
-    def finish(self, collector) -> dict:
-        """Close the bar and the collector (None: there was nothing left to collect); the final
-        evaluation's ``metrics.json`` (returned), or ``{}`` when ``stop_after`` stopped the run first
-        (``resume=<run_dir>`` continues it)."""
-        self.bar.close()
-        if collector is not None:
-            collector.shutdown()
-        self.ended = self.ended or self.counters["iteration"] >= self.iterations
-        if not self.ended:
-            return {}
+    def sync_policy(self) -> None:
         sync_obs_norm(self.policy, self.vecnorm)
-        return self.run.evaluate(self.policy, self.counters, budget=self.budget.record(self.stopped_by))
+
+    def _resume_state(self) -> dict:
+        state = super()._resume_state()
+        if self.replay_buffer is not None:
+            state["replay_buffer"] = replay_buffer_state(self.replay_buffer)
+        return state
+
+    def finish(self, **extra) -> dict:
+        """Close the collector (None: there was nothing left to collect), then :meth:`.TrainingLoop.finish`."""
+        if self.collector is not None:
+            self.collector.shutdown()
+        return super().finish(**extra)

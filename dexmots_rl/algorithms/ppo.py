@@ -99,59 +99,58 @@ def _train(run: RunDirectory, variant: PPOVariant) -> dict:
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip, observation=front)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    loop = CollectorLoop(run, policy, vecnorm, iterations)
     modules, optimizers = {"policy": policy, "critic": critic, "vecnorm": vecnorm}, {"optimizer": optimizer}
-    counters = loop.counters
-    counters.setdefault("updates", 0)  # Adam steps so far (a checkpoint of an older run may lack the count)
-    # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
-    frames = loop.frames_left(frames_per_batch)
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
-                          exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False) if frames else None
-    loop.start(collector, modules, optimizers)  # a resumed run continues from its checkpoint
-    for data in loop.batches(collector):
-        # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
-        stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
-        updates = 0
-        # screw_claw's returns are ~1e2: scaled, the critic's targets are O(1-10) (rl_games' reward x 0.01)
-        data.set(("next", "reward_scaled"), data.get(("next", variant.reward_key)) * a.reward_scale)
-        for _ in range(a.epochs):
-            with torch.no_grad():  # advantages with the current critic, every epoch (sota's recipe)
-                gae(data)
-            flat = data.reshape(-1)
-            for idx in torch.randperm(flat.numel()).split(a.minibatch_size):
-                out = loss(flat[idx])
-                total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", torch.zeros(()))
-                optimizer.zero_grad()
-                total.backward()
-                # actor and critic clipped apart: in one global norm the critic's gradient (value errors of
-                # O(returns)) shrank the actor's steps to nothing (tuning run P1, docs/baseline_tuning.md)
-                grad_norm = torch.nn.utils.clip_grad_norm_(actor.parameters(), a.max_grad_norm)
-                torch.nn.utils.clip_grad_norm_(critic.parameters(), a.max_grad_norm)
-                optimizer.step()
-                updates += 1
-                for key in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx"):
-                    if key in out.keys():
-                        stats["kl" if key == "kl_approx" else key] += float(out[key].detach())
-                stats["grad_norm"] += float(grad_norm)
-        # linear learning-rate annealing to 0 over the run (CleanRL's anneal_lr), ending with the budget if that
-        # comes first
-        counters["iteration"] += 1
-        if a.anneal_lr:
-            for group in optimizer.param_groups:
-                group["lr"] = a.lr * (1.0 - loop.progress())
-        collector.update_policy_weights_()  # single process: the collector already holds this actor
-        counters["env_steps"] += data.numel()
-        counters["updates"] += updates
+    # updates: Adam steps so far (a checkpoint of an older run may lack the count)
+    with CollectorLoop(run, env, policy, vecnorm, iterations, modules, optimizers, counters={"updates": 0}) as loop:
+        counters = loop.counters
+        # the collector runs the sampled policy (exploration RANDOM) and resets the worlds that are done
+        frames = loop.frames_left(frames_per_batch)
+        collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames, device=cfg.device,
+                              exploration_type=ExplorationType.RANDOM,
+                              auto_register_policy_transforms=False) if frames else None
+        loop.start(collector)  # a resumed run continues from its checkpoint
+        for data in loop.batches(collector):
+            # data: [num_envs, T]; flattened minibatches mix worlds and steps (GAE is computed before flattening)
+            stats = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "grad_norm": 0.0, "kl": 0.0}
+            updates = 0
+            # screw_claw's returns are ~1e2: scaled, the critic's targets are O(1-10) (rl_games' reward x 0.01)
+            data.set(("next", "reward_scaled"), data.get(("next", variant.reward_key)) * a.reward_scale)
+            for _ in range(a.epochs):
+                with torch.no_grad():  # advantages with the current critic, every epoch (sota's recipe)
+                    gae(data)
+                flat = data.reshape(-1)
+                for idx in torch.randperm(flat.numel()).split(a.minibatch_size):
+                    out = loss(flat[idx])
+                    total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", torch.zeros(()))
+                    optimizer.zero_grad()
+                    total.backward()
+                    # actor and critic clipped apart: in one global norm the critic's gradient (value errors of
+                    # O(returns)) shrank the actor's steps to nothing (tuning run P1, docs/baseline_tuning.md)
+                    grad_norm = torch.nn.utils.clip_grad_norm_(actor.parameters(), a.max_grad_norm)
+                    torch.nn.utils.clip_grad_norm_(critic.parameters(), a.max_grad_norm)
+                    optimizer.step()
+                    updates += 1
+                    for key in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx"):
+                        if key in out.keys():
+                            stats["kl" if key == "kl_approx" else key] += float(out[key].detach())
+                    stats["grad_norm"] += float(grad_norm)
+            # linear learning-rate annealing to 0 over the run (CleanRL's anneal_lr), ending with the budget if that
+            # comes first
+            counters["iteration"] += 1
+            if a.anneal_lr:
+                for group in optimizer.param_groups:
+                    group["lr"] = a.lr * (1.0 - loop.progress())
+            collector.update_policy_weights_()  # single process: the collector already holds this actor
+            counters["env_steps"] += data.numel()
+            counters["updates"] += updates
 
-        stats = {**{k: v / max(updates, 1) for k, v in stats.items()}, "updates": counters["updates"],
-                 "lr": optimizer.param_groups[0]["lr"],
-                 "policy_std": float(data.get("scale").mean())}
-        if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
-            stats[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
-        if loop.end_iteration(data, stats, modules, optimizers):
-            break
-    return loop.finish(collector)
+            stats = {**{k: v / max(updates, 1) for k, v in stats.items()}, "updates": counters["updates"],
+                     "lr": optimizer.param_groups[0]["lr"],
+                     "policy_std": float(data.get("scale").mean())}
+            if variant.reward_key != "reward":  # "reward" stays the task's (comparable across methods)
+                stats[variant.reward_key] = float(data.get(("next", variant.reward_key)).mean())
+            loop.end_batch(data, stats)
+        return loop.finish()
 
 
 def load_policy(data: dict, env):

@@ -85,48 +85,47 @@ def _train(run: RunDirectory) -> dict:
     policy = deployable_policy(actor, env.observation_spec["observation"].shape[-1], a.obs_clip)
     frames_per_batch = a.frames_per_batch
     iterations = max(1, math.ceil(float(a.total_frames) / frames_per_batch))
-    loop = CollectorLoop(run, policy, vecnorm, iterations, replay_buffer=buffer)
     modules, optimizers = {"policy": policy, "loss": loss, "vecnorm": vecnorm}, {"optimizer": optimizer}
-    counters = loop.counters
-    counters.setdefault("updates", 0)
-    frames = loop.frames_left(frames_per_batch)
-    # a resumed run has had some of its random frames already (the collector counts its own frames from 0)
-    random_frames = max(0, int(a.init_random_frames) - counters["env_steps"])
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames,
-                          init_random_frames=random_frames, device=cfg.device,
-                          exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False) if frames else None
-    loop.start(collector, modules, optimizers)  # a resumed run continues from its checkpoint
-    if 0 < counters["env_steps"] >= a.init_random_frames:  # resumed past the random frames: frozen, as it was
-        vecnorm.freeze()                                      # (VecNorm's state_dict does not hold the flag)
-    updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
-    for data in loop.batches(collector):
-        store_transitions(buffer, data)
-        counters["iteration"] += 1
-        counters["env_steps"] += data.numel()
-        stats = {"loss_actor": 0.0, "loss_qvalue": 0.0, "loss_alpha": 0.0}
-        learning = counters["env_steps"] >= a.init_random_frames
-        if learning:
-            if not vecnorm.frozen:  # statistics of the random-action frames, then fixed (see the docstring)
-                vecnorm.freeze()
-            for _ in range(updates_per_batch):
-                out = loss(buffer.sample())
-                total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
-                optimizer.zero_grad()
-                total.backward()
-                optimizer.step()
-                updater.step()
-                for key in stats:
-                    stats[key] += float(out[key].detach())
-            counters["updates"] += updates_per_batch
-        collector.update_policy_weights_()
+    with CollectorLoop(run, env, policy, vecnorm, iterations, modules, optimizers, counters={"updates": 0},
+                       replay_buffer=buffer) as loop:
+        counters = loop.counters
+        frames = loop.frames_left(frames_per_batch)
+        # a resumed run has had some of its random frames already (the collector counts its own frames from 0)
+        random_frames = max(0, int(a.init_random_frames) - counters["env_steps"])
+        collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=frames,
+                              init_random_frames=random_frames, device=cfg.device,
+                              exploration_type=ExplorationType.RANDOM,
+                              auto_register_policy_transforms=False) if frames else None
+        loop.start(collector)  # a resumed run continues from its checkpoint
+        if 0 < counters["env_steps"] >= a.init_random_frames:  # resumed past the random frames: frozen, as it was
+            vecnorm.freeze()                                      # (VecNorm's state_dict does not hold the flag)
+        updates_per_batch = max(1, round(frames_per_batch * a.utd_ratio))
+        for data in loop.batches(collector):
+            store_transitions(buffer, data)
+            counters["iteration"] += 1
+            counters["env_steps"] += data.numel()
+            stats = {"loss_actor": 0.0, "loss_qvalue": 0.0, "loss_alpha": 0.0}
+            learning = counters["env_steps"] >= a.init_random_frames
+            if learning:
+                if not vecnorm.frozen:  # statistics of the random-action frames, then fixed (see the docstring)
+                    vecnorm.freeze()
+                for _ in range(updates_per_batch):
+                    out = loss(buffer.sample())
+                    total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+                    optimizer.zero_grad()
+                    total.backward()
+                    optimizer.step()
+                    updater.step()
+                    for key in stats:
+                        stats[key] += float(out[key].detach())
+                counters["updates"] += updates_per_batch
+            collector.update_policy_weights_()
 
-        n = updates_per_batch if learning else 1
-        stats = {**{k: v / n for k, v in stats.items()}, "alpha": float(loss.log_alpha.detach().exp()),
-                 "updates": counters["updates"]}
-        if loop.end_iteration(data, stats, modules, optimizers):
-            break
-    return loop.finish(collector)
+            n = updates_per_batch if learning else 1
+            stats = {**{k: v / n for k, v in stats.items()}, "alpha": float(loss.log_alpha.detach().exp()),
+                     "updates": counters["updates"]}
+            loop.end_batch(data, stats)
+        return loop.finish()
 
 
 def load_policy(data: dict, env):
