@@ -141,7 +141,7 @@ class ArticulatedTrajectory:
                 out.append((k.frames, dim, [model, variant, state[2], state[3], *fr]))
                 out.append((h.link_frames, (dim, sim.scene.num_fingers), [hand_model, state[0], *lk]))
                 if k.table:
-                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, *tb]))
+                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, *tb, *tb]))
                 if palm:
                     with_palm = [rows(x, s) for x in palm]
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),

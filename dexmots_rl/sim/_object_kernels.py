@@ -24,9 +24,9 @@ import functools
 
 import warp as wp
 
-from ._constants import CONTACT_CUTOFF
 from ._contact_sum_kernels import build_sum_contacts
 from ._kernel_funcs import build_funcs
+from ._surface_kernels import build_surface_contact
 
 __all__ = ["build_object_kernels"]
 
@@ -39,7 +39,7 @@ class ObjectKernels:
     Model: type  # the object's model struct (a wp.struct)
     substep: object  # wp.Kernel: the tree's implicit solve
     frames: object  # wp.Kernel: every body's frame and velocity
-    table_contact: object  # wp.Kernel: the table's push on each body
+    table_contact: object  # wp.Kernel: the table's push on each body (sim/_surface_kernels.py)
     table: bool  # the scene has a table (else table_contact is never launched)
     sum_contacts: object  # wp.Kernel: each body's total contact and the hand's running means
     vec3: type
@@ -97,7 +97,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
 
     funcs = build_funcs(dtype)
     axis_angle, limit_ramp, limit_slope = funcs.axis_angle, funcs.limit_ramp, funcs.limit_slope
-    joint_friction, surface_contact = funcs.joint_friction, funcs.surface_contact
+    joint_friction = funcs.joint_friction
 
     @wp.func
     def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int, v: int):
@@ -374,60 +374,12 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
             body_v[w, b] = v_c
             body_w[w, b] = om
 
-    @wp.kernel(module="unique", enable_backward=True)
-    def table_contact(
-        m: Model,
-        variant: wp.array(dtype=wp.int32),  # [N]
-        body_x: wp.array2d(dtype=vec3),  # [N, B] (frames)
-        body_R: wp.array2d(dtype=mat33),
-        body_c: wp.array2d(dtype=vec3),
-        body_v: wp.array2d(dtype=vec3),
-        body_w: wp.array2d(dtype=vec3),
-        dt: dtype,
-        contact_f: wp.array2d(dtype=vec3),  # [N, B] out (accumulated): force on the body (N)
-        contact_t: wp.array2d(dtype=vec3),  # [N, B] out: torque about its com (N m)
-        contact_Kvv: wp.array2d(dtype=mat33),  # [N, B] out: dt x viscous friction seen at the com
-        contact_Kvw: wp.array2d(dtype=mat33),
-        contact_Kww: wp.array2d(dtype=mat33),
-    ):
-        """The table's push on body b of world w (a thread per world and body): penalty normal force with
-        Hunt-Crossley damping and smoothed Coulomb friction at each surface sample. Their viscous parts are
-        handed to the solve as a matrix (linearly implicit: the object holds on the table like static friction
-        at any slip velocity, and a stiff damper cannot overshoot and pump energy into a bounce)."""
-        w, b = wp.tid()
-        v = variant[w]
-        x = body_x[w, b]
-        R = body_R[w, b]
-        c = body_c[w, b]
-        vc = body_v[w, b]
-        om = body_w[w, b]
-        f_sum = vec3()
-        t_sum = vec3()
-        Kvv = mat33()
-        Kvw = mat33()
-        Kww = mat33()
-        table_z = m.table_z[v]
-        up = vec3(dtype(0.0), dtype(0.0), dtype(1.0))
-        for s in range(S):
-            rad = m.sample_radius[v, b, s]
-            if rad >= dtype(0.0):
-                ps = x + R * m.sample_pos[v, b, s]
-                pen = table_z + rad - ps[2]
-                if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                    r = ps - up * rad - c
-                    f, Pc = surface_contact(pen, up, vc + wp.cross(om, r), m.ke, m.beta, m.kd, m.mu, m.v_slip, dt)
-                    f_sum = f_sum + f
-                    t_sum = t_sum + wp.cross(r, f)
-                    # P at the contact point moved to the com (the point's velocity is V - [r]x w)
-                    Sr = wp.skew(r)
-                    Kvv = Kvv + Pc
-                    Kvw = Kvw - Pc * Sr
-                    Kww = Kww + wp.transpose(Sr) * Pc * Sr
-        contact_f[w, b] = contact_f[w, b] + f_sum
-        contact_t[w, b] = contact_t[w, b] + t_sum
-        contact_Kvv[w, b] = contact_Kvv[w, b] + Kvv
-        contact_Kvw[w, b] = contact_Kvw[w, b] + Kvw
-        contact_Kww[w, b] = contact_Kww[w, b] + Kww
+    @wp.func
+    def table_top(m: Model, v: int, k: int, ps: vec3, rad: dtype):
+        """A sample sphere's penetration into the table's top (variant v) and the top's normal (the surface of
+        sim/_surface_kernels.py)."""
+        return m.table_z[v] + rad - ps[2], vec3(dtype(0.0), dtype(0.0), dtype(1.0))
 
-    return ObjectKernels(Model=Model, substep=substep, frames=frames, table_contact=table_contact, table=TABLE,
+    return ObjectKernels(Model=Model, substep=substep, frames=frames, table=TABLE,
+                         table_contact=build_surface_contact(dtype, Model, S, 1, table_top),
                          sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)

@@ -203,8 +203,8 @@ class ObjectSimulator:
             wp.launch(k.frames, dim=n, inputs=[self.model, variant, q_in, qd_in], outputs=frames, device=self.device)
             contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
             if k.table:
-                wp.launch(k.table_contact, dim=(n, nb), inputs=[self.model, variant, *frames, wdt(self.sub_dt)],
-                          outputs=contact, device=self.device)
+                wp.launch(k.table_contact, dim=(n, nb), device=self.device,  # in place
+                          inputs=[self.model, variant, *frames, wdt(self.sub_dt), *contact], outputs=contact)
             q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
             wp.launch(k.substep, dim=n, device=self.device,
                       inputs=[self.model, variant, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),
