@@ -213,3 +213,64 @@ def test_eval_refuses_objects_of_another_class_or_topology(tmp_path, capsys):
 
     assert check_evaluation_objects({"object": "stapler_a", "objects": None}, "heldout") == ["stapler_b"]
     assert check_evaluation_objects({"object": "valve_a", "objects": "valve_a,valve_c"}, "valve_b") == ["valve_b"]
+
+
+# the commands that run from a config under configs/ take hydra key=value overrides; every other takes --options
+KEY_VALUE_SCRIPTS = {"dexmots-train", "dexmots-table", "dexmots-record"}
+# each --options command with its required arguments (none is run: the unknown option stops it first)
+OPTION_ARGS = {"dexmots-bench": ["throughput"], "dexmots-eval": ["run"], "dexmots-plot": ["curves", "runs/a"],
+               "dexmots-plan": ["--task", "screw_claw", "--goal", "1", "--out", "p.pt"],
+               "dexmots-pregrasp": ["--task", "screw_claw"], "dexmots-rollout": [], "dexmots-view": ["run.mcap"],
+               "dexmots-sysid": ["--data", "run.mcap", "--params", "joint_damping", "--out", "knob.json"]}
+
+
+def _console_scripts() -> dict:
+    import tomllib
+
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        return tomllib.load(f)["project"]["scripts"]
+
+
+def _run_script(script: str, args: list[str], monkeypatch, capsys):
+    """``script``'s entry point on the command line ``args``: (exit code, stdout, stderr)."""
+    import importlib
+
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()  # another test's compose() may have left hydra initialised
+    module, _, name = _console_scripts()[script].partition(":")
+    monkeypatch.setattr(sys, "argv", [script, *args])
+    code = 0
+    try:
+        getattr(importlib.import_module(module), name)()
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_every_console_script_follows_one_convention():
+    assert set(_console_scripts()) == KEY_VALUE_SCRIPTS | set(OPTION_ARGS)
+
+
+@pytest.mark.parametrize("script", sorted(KEY_VALUE_SCRIPTS | set(OPTION_ARGS)))
+def test_every_console_script_prints_its_help(script, monkeypatch, capsys):
+    code, out, err = _run_script(script, ["--help"], monkeypatch, capsys)
+    assert code in (0, None) and script in out, (code, out, err)
+
+
+@pytest.mark.parametrize("script", sorted(OPTION_ARGS))
+def test_an_unknown_option_is_one_error_naming_it(script, monkeypatch, capsys, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run_script(script, [*OPTION_ARGS[script], "--no-such-option"], monkeypatch, capsys)
+    assert code == 2 and err.strip().splitlines()[-1] == f"{script}: error: unrecognized arguments: --no-such-option"
+
+
+@pytest.mark.parametrize("script", sorted(KEY_VALUE_SCRIPTS))
+@pytest.mark.parametrize("key", ["no_such_key", "+no_such_key"])
+def test_an_unknown_key_is_one_line_naming_it_and_the_known_ones(script, key, monkeypatch, capsys, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run_script(script, [f"{key}=1"], monkeypatch, capsys)
+    message = str(code)
+    assert message.startswith(f"{script}: no_such_key: no such key") and "\n" not in message, (code, err)
+    assert "seed" in message and not out and "Traceback" not in err and not list(tmp_path.iterdir())

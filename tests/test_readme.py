@@ -23,7 +23,7 @@ from dexmots_rl.envs import list_tasks
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 HYDRA_APPS = {"dexmots-train", "dexmots-table"}
-KEY_VALUE_APPS = {"dexmots-record", "dexmots-sysid"}
+KEY_VALUE_APPS = {"dexmots-record"}
 
 
 def console_scripts() -> dict[str, str]:

@@ -121,7 +121,7 @@ def test_bad_input_is_one_error_naming_it(tmp_path, knob_data):
     with pytest.raises(ValueError, match="missing array 'kp'"):
         load_trajectories(tmp_path / "no_kp.npz")
     with pytest.raises(SystemExit, match="dexmots-sysid: .*unknown parameter 'nope'"):
-        sysid_cli([f"data={path}", "params=nope", f"out={tmp_path / 'x.json'}"])
+        sysid_cli(["--data", str(path), "--params", "nope", "--out", str(tmp_path / "x.json")])
     assert not (tmp_path / "x.json").exists()
 
 
@@ -135,8 +135,8 @@ def test_record_identify_and_train_on_the_identified_model(tmp_path):
     record(["task=screw_claw", "task.damping_range=[0.5,0.5]", "task.friction_range=[0.6,0.6]", "num_envs=2",
             "steps=32", f"out={data}"])
     out = tmp_path / "knob.json"
-    summary = sysid_cli([f"data={data}", "params=joint_damping,joint_friction", f"out={out}", "iterations=10",
-                         "init.joint_damping=1.0", "init.joint_friction=1.2", "method=gn"])
+    summary = sysid_cli(["--data", str(data), "--params", "joint_damping", "joint_friction", "--out", str(out),
+                         "--iterations", "10", "--init", "joint_damping=1.0", "joint_friction=1.2", "--method", "gn"])
     assert (tmp_path / "knob_report" / "report.txt").is_file() and (tmp_path / "knob_report" / "params.png").is_file()
     values = json.loads(out.read_text())["params"]
     assert summary["values"] == values and max(summary["relative_error"].values()) < 0.01, summary

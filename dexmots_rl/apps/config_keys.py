@@ -1,7 +1,8 @@
 """Keys no config declares: hydra composes ``+group.key=value`` (the spelling its own error advises for a key
 it does not know) into the config without a word, so a typo would train to the end and be ignored. The console
 scripts compare what they were given with what their configs declare and refuse the first unknown key, naming
-the keys it could have been, before any work.
+the keys it could have been, before any work. A key given without ``+`` is refused the same way before hydra
+composes (:func:`refuse_undeclared_command_line`), so it is one line, not hydra's advice to add a ``+``.
 
 Example:
     >>> from omegaconf import OmegaConf
@@ -18,10 +19,11 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Collection
 
-__all__ = ["TABLE_FREE_SECTIONS", "declared_config", "refuse_undeclared_table_keys", "refuse_undeclared_train_keys",
-           "refuse_unknown_keys", "unknown_keys"]
+__all__ = ["TABLE_FREE_SECTIONS", "declared_config", "refuse_undeclared_command_line", "refuse_undeclared_table_keys",
+           "refuse_undeclared_train_keys", "refuse_unknown_keys", "unknown_keys"]
 
 #: dexmots-table's sections whose keys are the user's (task, method and launcher field names)
 TABLE_FREE_SECTIONS = ("method_catalog", "task_labels", "task_budgets", "task_overrides", "method_overrides",
@@ -90,3 +92,31 @@ def refuse_undeclared_table_keys(cfg, config_dir) -> None:
         refuse_unknown_keys(cfg, declared_config(str(config_dir)), free=TABLE_FREE_SECTIONS)
     except ValueError as e:
         raise SweepSpecError(str(e)) from None
+
+
+def refuse_undeclared_command_line(argv: list[str], config_dir, free: Collection[str] = ()) -> None:
+    """``ValueError`` naming the first ``key=value`` of a hydra app's command line ``argv`` (its flags, ``+``,
+    ``++``, ``~`` and ``hydra.*`` overrides aside) that the config of ``config_dir``, with the command line's
+    group choices (``task=...``, ``algo=...``), does not declare, and the keys of its section; keys under
+    ``free`` sections are the user's."""
+    from hydra._internal.utils import get_args_parser
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        overrides = OverridesParser.create().parse_overrides(get_args_parser().parse_args(argv).overrides)
+    except Exception:  # hydra's own parsing reports a malformed override
+        return
+    config_dir = Path(config_dir)
+    groups = {p.name for p in config_dir.iterdir() if p.is_dir() and not p.name.startswith("_")}
+    groups |= {"task"} & {o.key_or_group for o in overrides}  # the tasks' typed configs (hydra's ConfigStore)
+    plain = [o for o in overrides if not (o.is_add() or o.is_force_add() or o.is_delete())]
+    choices = tuple(o.input_line for o in plain if o.key_or_group in groups and not o.is_sweep_override())
+    given: dict = {}
+    for o in plain:
+        if o.key_or_group in groups or o.key_or_group.startswith("hydra."):
+            continue
+        node, *path = given, *o.key_or_group.split(".")
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+        node.setdefault(path[-1], None)
+    refuse_unknown_keys(given, declared_config(str(config_dir), choices), free=free)

@@ -61,10 +61,11 @@ def parse_overrides(tokens: list[str]) -> dict:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from .config_keys import declared_config, refuse_unknown_keys
+    from .config_keys import declared_config, refuse_undeclared_command_line, refuse_unknown_keys
     from .train import CONFIG_DIR
 
     overrides = [token.removeprefix("--") for token in tokens]
+    refuse_undeclared_command_line(overrides, CONFIG_DIR / "record")
     try:
         with initialize_config_dir(config_dir=str(CONFIG_DIR / "record"), version_base="1.3"):
             cfg = compose("config", overrides=overrides)

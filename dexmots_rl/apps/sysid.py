@@ -1,103 +1,97 @@
 """``dexmots-sysid``: identify an object's physical parameters from recorded trajectories, through the simulator.
 
-    dexmots-sysid data=run.mcap params=joint_damping,joint_friction out=knob.json
-    dexmots-sysid data=traj.npz params=hinge/damping,hinge/friction method=gn out=door.json
+    dexmots-sysid --data run.mcap --params joint_damping joint_friction --out knob.json
+    dexmots-sysid --data traj.npz --params hinge/damping hinge/friction --method gn --out door.json
     dexmots-train task=screw_claw task.object_params=knob.json                 # train on the identified model
 
-Arguments are ``key=value`` tokens (a leading ``--`` is accepted): ``data`` (an MCAP recording from
-``dexmots-record`` / ``dexmots-eval --record``, or a ``.npz``: layout in :mod:`dexmots_rl.sysid.data`), ``params``
-(comma-separated names of the scene's ``("sim", "params", ...)`` parameters), ``out`` (the parameter file, JSON;
-``task.object_params`` reads it), ``method`` (``lbfgs``: L-BFGS on the gradient through the simulator; ``gn``:
-Gauss-Newton on the exact Jacobian; ``fd-gn`` and ``cmaes``: the finite-difference and gradient-free
-references), ``iterations`` (30), ``segment_steps`` (8: env steps per shooting segment), ``validation`` (0.25:
-the share of segments held out), ``max_segments`` (none), ``seed`` (0), ``init.<name>=<value>`` (an initial guess;
-default the scene's nominal value), ``bounds.<name>=<low>,<high>``, ``position_scale`` (0.001 m) and
-``angle_scale`` (0.01 rad): the measurement noise the residuals are divided by, ``free_starts`` (false; with
-``lbfgs``: the segments' start positions are estimated too, for noisy data), and ``report`` (a folder; default
-``<out without .json>_report``). Prints one JSON line: the values, their standard deviations, the condition
-number, the unidentifiable parameters and the replay errors; the report folder holds the text and the plots.
+``--data``: an MCAP recording from ``dexmots-record`` / ``dexmots-eval --record``, or a ``.npz`` (layout in
+:mod:`dexmots_rl.sysid.data`); ``--params``: names of the scene's ``("sim", "params", ...)`` parameters;
+``--out``: the parameter file (JSON) ``task.object_params`` reads. ``--method``: ``lbfgs`` (L-BFGS on the
+gradient through the simulator), ``gn`` (Gauss-Newton on the exact Jacobian), ``fd-gn`` and ``cmaes`` (the
+finite-difference and gradient-free references). ``--init NAME=VALUE``: initial guesses (default the scene's
+nominal values); ``--bounds NAME=LOW,HIGH``; ``--position-scale`` (m) and ``--angle-scale`` (rad): the
+measurement noise the residuals are divided by; ``--free-starts``: with ``lbfgs``, the segments' start
+positions are estimated too (noisy data); ``--report``: a folder (default ``<out without .json>_report``).
+Prints one JSON line: the values, their standard deviations, the condition number, the unidentifiable
+parameters and the replay errors; the report folder holds the text and the plots.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import sys
 from pathlib import Path
 
-from ._cli import errors_as_one_line, printed_help
+from ._cli import errors_as_one_line
 
-__all__ = ["DEFAULTS", "parse_overrides", "run", "main"]
+__all__ = ["build_parser", "run", "main"]
 
 log = logging.getLogger(__name__)
 
-DEFAULTS = {"data": None, "params": None, "out": None, "method": "lbfgs", "iterations": 30, "segment_steps": 8,
-            "validation": 0.25, "max_segments": None, "seed": 0, "position_scale": 1e-3, "angle_scale": 1e-2,
-            "free_starts": False, "report": None}
-_INTS, _FLOATS = ("iterations", "segment_steps", "max_segments", "seed"), ("validation", "position_scale",
-                                                                          "angle_scale")
+
+def _named_values(kind, metavar: str):
+    """An argparse type: ``NAME=VALUE`` -> ``(NAME, kind(VALUE))``, its error naming ``metavar``."""
+    def parse(token: str):
+        name, sep, value = token.partition("=")
+        try:
+            if not (sep and name):
+                raise ValueError
+            return name, kind(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {metavar}, got {token!r}") from None
+    return parse
 
 
-def _number(key: str, value: str, kind):
-    try:
-        return kind(value)
-    except ValueError:
-        raise ValueError(f"{key} must be {'an integer' if kind is int else 'a number'}, got {value!r}") from None
+def _low_high(value: str) -> tuple[float, float]:
+    low, high = (float(v) for v in value.split(","))  # anything but two numbers: ValueError
+    return low, high
 
 
-def parse_overrides(tokens: list[str]) -> dict:
-    """``["key=value", ...]`` -> the options (with ``"init"`` and ``"bounds"`` dicts); unknown keys are errors."""
-    opts = {**DEFAULTS, "init": {}, "bounds": {}}
-    for token in tokens:
-        key, sep, value = token.removeprefix("--").partition("=")
-        group, dot, name = key.partition(".")
-        if sep and dot and group in ("init", "bounds") and name:
-            if group == "init":
-                opts["init"][name] = _number(key, value, float)
-            else:
-                pair = [_number(key, v, float) for v in value.split(",")]
-                if len(pair) != 2:
-                    raise ValueError(f"{key} must be <low>,<high>, got {value!r}")
-                opts["bounds"][name] = tuple(pair)
-            continue
-        key = key.replace("-", "_")
-        if not sep or key not in DEFAULTS:
-            raise ValueError(f"bad argument {token!r}: expected key=value with key one of {', '.join(DEFAULTS)}, "
-                             "init.<name> or bounds.<name>")
-        if key == "free_starts":
-            if value.lower() not in ("true", "false"):
-                raise ValueError(f"free_starts must be true or false, got {value!r}")
-            opts[key] = value.lower() == "true"
-            continue
-        opts[key] = (_number(key, value, int) if key in _INTS else _number(key, value, float) if key in _FLOATS
-                     else value)
-    for key in ("data", "params", "out"):
-        if not opts[key]:
-            raise ValueError(f"{key} is required (e.g. data=run.mcap params=joint_damping,joint_friction out=knob.json)")
-    opts["params"] = [p.strip() for p in opts["params"].split(",") if p.strip()]
-    return opts
+def build_parser() -> argparse.ArgumentParser:
+    from ..sysid import METHODS
+
+    p = argparse.ArgumentParser(prog="dexmots-sysid", description=__doc__.splitlines()[0])
+    p.add_argument("--data", required=True, help="an MCAP recording or a .npz of trajectories")
+    p.add_argument("--params", nargs="+", required=True, metavar="NAME",
+                   help="the scene's parameters to identify (e.g. joint_damping joint_friction)")
+    p.add_argument("--out", required=True, help="the parameter file to write (JSON; task.object_params reads it)")
+    p.add_argument("--method", default="lbfgs", choices=METHODS)
+    p.add_argument("--iterations", type=int, default=30)
+    p.add_argument("--segment-steps", type=int, default=8, help="env steps per shooting segment")
+    p.add_argument("--validation", type=float, default=0.25, help="the share of segments held out")
+    p.add_argument("--max-segments", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--init", nargs="+", default=[], metavar="NAME=VALUE", type=_named_values(float, "NAME=VALUE"),
+                   help="initial guesses (default: the scene's nominal values)")
+    p.add_argument("--bounds", nargs="+", default=[], metavar="NAME=LOW,HIGH",
+                   type=_named_values(_low_high, "NAME=LOW,HIGH"),
+                   help="search bounds (default x0.01-x100 of the guess, +-2 around it for a rest position)")
+    p.add_argument("--position-scale", type=float, default=1e-3, help="position noise of the data (m)")
+    p.add_argument("--angle-scale", type=float, default=1e-2, help="angle noise of the data (rad)")
+    p.add_argument("--free-starts", action="store_true", help="lbfgs: estimate the segments' start positions too")
+    p.add_argument("--report", default=None, help="the report folder (default: <out without .json>_report)")
+    return p
 
 
 def run(argv: list[str] | None = None) -> dict:
     """Parse, identify, write the parameter file and the report; return (and print) the summary."""
     from ..envs.object_params import write_object_params
-    from ..sysid import METHODS, ShootingProblem, identify, load_trajectories, write_report
+    from ..sysid import ShootingProblem, identify, load_trajectories, write_report
 
+    args = build_parser().parse_args(argv)
     with errors_as_one_line("dexmots-sysid"):
-        opts = parse_overrides(list(sys.argv[1:] if argv is None else argv))
-        if opts["method"] not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {opts['method']!r}")
-        traj = load_trajectories(opts["data"])
-        problem = ShootingProblem(traj, opts["params"], segment_steps=opts["segment_steps"],
-                                  validation=opts["validation"], seed=opts["seed"], initial=opts["init"],
-                                  bounds=opts["bounds"], max_segments=opts["max_segments"],
-                                  position_scale=opts["position_scale"], angle_scale=opts["angle_scale"],
-                                  free_starts=opts["free_starts"])
-        result = identify(problem, opts["method"], iterations=opts["iterations"], seed=opts["seed"])
-        out = Path(opts["out"])
-        report = Path(opts["report"] or out.with_name(out.stem + "_report"))
+        traj = load_trajectories(args.data)
+        problem = ShootingProblem(traj, args.params, segment_steps=args.segment_steps, validation=args.validation,
+                                  seed=args.seed, initial=dict(args.init), bounds=dict(args.bounds),
+                                  max_segments=args.max_segments, position_scale=args.position_scale,
+                                  angle_scale=args.angle_scale, free_starts=args.free_starts)
+        result = identify(problem, args.method, iterations=args.iterations, seed=args.seed)
+        out = Path(args.out)
+        report = Path(args.report or out.with_name(out.stem + "_report"))
         write_report(result, problem, report)
-        write_object_params(out, traj.task["name"], result.values, std=result.std, data=str(opts["data"]),
+        write_object_params(out, traj.task["name"], result.values, std=result.std, data=str(args.data),
                             method=result.method, condition_number=result.condition_number,
                             unidentifiable=result.unidentifiable)
     summary = {k: v for k, v in result.summary().items() if k in ("values", "std", "condition_number", "unidentifiable",
@@ -107,7 +101,5 @@ def run(argv: list[str] | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    if printed_help("dexmots-sysid", __doc__, argv):
-        return
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     print(json.dumps(run(argv)))

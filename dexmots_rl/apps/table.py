@@ -378,8 +378,14 @@ def main() -> None:
 
     importlib.import_module("dexmots_rl.envs")  # registers the tasks' configs with hydra
     from ._cli import os_errors_as_one_line
+    from .config_keys import TABLE_FREE_SECTIONS, refuse_undeclared_command_line
     from .table_spec import SweepSpecError
     from .train import CONFIG_DIR
+
+    try:  # one line naming the known keys, not hydra's advice to add a '+' (which adds nothing)
+        refuse_undeclared_command_line(sys.argv[1:], CONFIG_DIR / "table", free=TABLE_FREE_SECTIONS)
+    except ValueError as e:
+        raise SystemExit(f"dexmots-table: {e}") from None
 
     @hydra.main(config_path=str(CONFIG_DIR / "table"), config_name="config", version_base="1.3")
     def _app(cfg: DictConfig) -> None:

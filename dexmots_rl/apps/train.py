@@ -69,6 +69,13 @@ def main() -> None:
     from ..atomic import dumps_json
     from ._cli import os_errors_as_one_line
 
+    from .config_keys import refuse_undeclared_command_line
+
+    try:  # one line naming the known keys, not hydra's advice to add a '+' (which adds nothing)
+        refuse_undeclared_command_line(sys.argv[1:], CONFIG_DIR)
+    except ValueError as e:
+        raise SystemExit(f"dexmots-train: {e}") from None
+
     @hydra.main(config_path=str(CONFIG_DIR), config_name="config", version_base="1.3")
     def _app(cfg: DictConfig) -> None:
         logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
