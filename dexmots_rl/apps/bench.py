@@ -12,11 +12,12 @@
     dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
     dexmots-bench gpu --out gpu_check.json   # every figure on one GPU in one JSON file (scripts/gpu_check.sh)
     dexmots-bench sysid --task screw_claw --json [--counts 2 4] [--methods lbfgs gn fd-gn cmaes]  # identification
+    dexmots-bench diagnose --task jar --json [--run <run_dir or checkpoint>] [--horizons 1 4 16 32] [--num-envs 4]
 
 Every number is measured in the same run (nothing is read from files). The result is printed to stdout
 as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
 :mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`, :mod:`.bench_compile`,
-:mod:`.bench_gpu` and :mod:`.bench_sysid`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits
+:mod:`.bench_gpu`, :mod:`.bench_sysid` and :mod:`.bench_diagnose`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits
 non-zero when a kernel failed to compile.
 """
 
@@ -144,6 +145,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="accepted for symmetry: the result is always JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
     p.add_argument("overrides", nargs="*", help="extra hydra overrides for the training, e.g. algo.horizon=16")
+    p = sub.add_parser("diagnose", help="a policy's gradient through the simulator (growth with horizon, capped "
+                                        "adjoints, first- vs zeroth-order) and the actions it explores")
+    p.add_argument("--task", default=None, choices=list_tasks(), help="default: the run's")
+    p.add_argument("--run", default=None, help="a run directory or checkpoint (default: the initial policy)")
+    p.add_argument("--zero-mean", action="store_true", help="zero pre-tanh mean actions instead of a policy's")
+    p.add_argument("--horizons", type=int, nargs="+", default=[1, 4, 16, 32])
+    p.add_argument("--num-envs", type=int, default=4, help="start states (each copied into 2 x pairs worlds)")
+    p.add_argument("--pairs", type=int, default=32, help="antithetic pairs per start state (zeroth-order estimate)")
+    p.add_argument("--start-steps", type=int, default=0, help="steps of the policy's mean action after the reset")
+    p.add_argument("--adjoint-clip", default="run", help="the cap of the gradient through the simulator: 'run' (the "
+                                                         "run's or default config's algo.adjoint_clip), a number, none")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
     add_sysid_parser(sub)
     return parser
 
@@ -221,6 +237,11 @@ def _execute(args: argparse.Namespace) -> dict:
                                  args.torch_threads or None, args.overrides)
         if args.bench == "sysid":
             return run_sysid_bench(args)
+        if args.bench == "diagnose":
+            from .bench_diagnose import adjoint_clip_option, diagnose
+
+            return diagnose(args.task, args.run, args.horizons, args.num_envs, args.pairs, args.start_steps,
+                            args.seed, args.zero_mean, adjoint_clip_option(args.adjoint_clip), args.device)
         if args.bench == "plan":
             from .plan import run_plan_bench
 

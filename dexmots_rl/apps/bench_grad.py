@@ -43,7 +43,7 @@ import torch
 
 from .bench_setup import bench_env
 
-__all__ = ["GOAL_ANGLE", "GOAL_SPEED", "NOISE", "LossTarget", "loss_rollout", "grad_row", "run_grad"]
+__all__ = ["GOAL_ANGLE", "GOAL_SPEED", "NOISE", "LossTarget", "growth_per_step", "loss_rollout", "grad_row", "run_grad"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,15 @@ def _base_deviation(q, qd, q0, nu: int, tolerance) -> tuple[torch.Tensor, torch.
         + (2.0 / tilt) ** 2 * ((q[:, nu + 3:nu + 7] - q0[:, nu + 3:nu + 7]) ** 2).sum(-1)
     speed = (qd[:, nu:nu + 3] ** 2).sum(-1) / shift**2 + (qd[:, nu + 3:nu + 6] ** 2).sum(-1) / tilt**2
     return pose, speed
+
+
+def growth_per_step(norms: torch.Tensor) -> torch.Tensor:
+    """The per-step amplification backward in time of gradient norms ``[..., H]`` (``norms[..., t]``:
+    ``|dL/da_t|``): exp of the least-squares slope of their log against steps to go (1.0: none)."""
+    horizon = norms.shape[-1]
+    to_go = torch.arange(horizon - 1, -1, -1, dtype=torch.float64)
+    x = to_go - to_go.mean()  # centred, so the least-squares slope needs no centring of the logs
+    return ((norms.double().log() * x).sum(-1) / (x * x).sum().clamp_min(1e-12)).exp()
 
 
 def loss_rollout(sim, q0: torch.Tensor, actions: torch.Tensor, target: LossTarget, kind: str = "pose"):
@@ -158,10 +167,6 @@ def grad_row(scene, poses, horizon: int, contact: bool, eps: float, num_entries:
     rel = (ad - fd).abs() / torch.maximum(fd.abs(), floor)
     norms = ad_full.norm(dim=2)  # [D, H]
     growth = norms.amax(1) / norms[:, -1]
-    # per-step amplification backward in time: slope of log|dL/da_t| against steps-to-go (1.0: none)
-    to_go = torch.arange(horizon - 1, -1, -1, dtype=torch.float64)
-    x = to_go - to_go.mean()  # centred, so the least-squares slope needs no centring of log|dL/da_t|
-    slope = (norms.log() * x).sum(1) / (x * x).sum().clamp_min(1e-12)
     contact_fraction = (forces.cpu().view(horizon, draws, per_draw)[:, :, 0] > 0).double().mean().item()
     if contact != (contact_fraction > 0):
         log.warning("H=%d contact=%s: contact force > 0 on %.0f%% of the steps", horizon, contact,
@@ -175,7 +180,7 @@ def grad_row(scene, poses, horizon: int, contact: bool, eps: float, num_entries:
         "max_rel_err": rel.max().item(),
         "grad_growth": growth.median().item(),  # median over draws
         "grad_growth_max": growth.max().item(),  # worst draw
-        "growth_per_step": slope.exp().median().item(),
+        "growth_per_step": growth_per_step(norms).median().item(),
         "contact_fraction": contact_fraction,
         "loss": loss[:, 0].mean().item(),
         "grad_norm": ad_full.flatten(1).norm(dim=1).median().item(),
