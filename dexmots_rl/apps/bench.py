@@ -14,11 +14,11 @@
     dexmots-bench sysid --task screw_claw --json [--counts 2 4] [--methods lbfgs gn fd-gn cmaes]  # identification
     dexmots-bench diagnose --task jar --json [--run <run_dir or checkpoint>] [--horizons 1 4 16 32] [--num-envs 4]
 
-Every number is measured in the same run (nothing is read from files). The result is printed to stdout
-as one JSON object with ``--json``, a table otherwise; progress goes to stderr. The logic lives in
-:mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`, :mod:`.bench_compile`,
-:mod:`.bench_gpu`, :mod:`.bench_sysid` and :mod:`.bench_diagnose`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits
-non-zero when a kernel failed to compile.
+Every number is measured in the same run (nothing is read from files but, for ``diagnose``, the diagnosed
+run's own). The result is printed to stdout as one JSON object with ``--json``, a table otherwise; progress goes
+to stderr. The logic lives in :mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`,
+:mod:`.bench_compile`, :mod:`.bench_gpu`, :mod:`.bench_sysid` and :mod:`.bench_diagnose`; ``compile`` and ``gpu``
+always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
 """
 
 from __future__ import annotations

@@ -50,7 +50,8 @@ from torchrl.envs.utils import step_mdp
 
 from .bench_grad import growth_per_step
 
-__all__ = ["NEAR_BOUND", "adjoint_clip_option", "diagnose", "fo_zo_agreement", "load_policy_source", "training_log_summary"]
+__all__ = ["NEAR_BOUND", "adjoint_clip_option", "diagnose", "fo_zo_agreement", "load_policy_source",
+           "training_log_summary"]
 
 log = logging.getLogger(__name__)
 
