@@ -23,18 +23,14 @@ __all__ = ["build_finger_contact"]
 GEOM_SKIP_MARGIN = 1.0e-5  # m: a geom is skipped only when its bound lies this much beyond the nearest so far
 
 
-def build_finger_contact(Model, unit_j, dtype, joints: int, points: int, bodies: int,
-                         geoms: int) -> types.SimpleNamespace:
+def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, geoms: int) -> types.SimpleNamespace:
     """``geom_distance`` (a point's signed distance to a geom) and the ``finger_contact`` kernel, for the hand
-    model struct ``Model`` and its ``unit_j`` (the unit vector of a joint; sim/_hand_kernels.py), chains of
-    ``joints`` hinges with ``points`` spheres per link, against an object of ``bodies`` bodies with at most
-    ``geoms`` geoms each."""
+    model struct ``Model`` (sim/_hand_kernels.py), chains of ``joints`` hinges with ``points`` spheres per link,
+    against an object of ``bodies`` bodies with at most ``geoms`` geoms each."""
     J, P, B, G = int(joints), int(points), int(bodies), int(geoms)
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
-    vecJ = wp.types.vector(J, dtype)
-    mat3J = wp.types.matrix((3, J), dtype)
     funcs = build_funcs(dtype)
     softplus, box_distance, grid_distance = funcs.softplus, funcs.box_distance, funcs.grid_distance
     normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
@@ -145,18 +141,18 @@ def build_finger_contact(Model, unit_j, dtype, joints: int, points: int, bodies:
                 return
         f = link / J
         k_link = link - f * J
-        # the chain's joints up to the link (origins and axes as columns, link_frames') and their velocities
-        O = mat3J()
-        A = mat3J()
-        qdf = vecJ()
+        x = link_x[w, link]
+        R = link_R[w, link]
+        # the link's velocity over its chain's joints (link_frames' origins and axes): its origin's and its
+        # angular velocity, so a sphere's is one cross product away
+        vx = vec3()
+        om = vec3()
         for k in range(J):
             if k <= k_link:
                 i = f * J + k
-                O = O + wp.outer(link_x[w, i], unit_j(k))
-                A = A + wp.outer(link_a[w, i], unit_j(k))
-                qdf = qdf + hqd[w, i] * unit_j(k)
-        x = link_x[w, link]
-        R = link_R[w, link]
+                a = link_a[w, i]
+                vx = vx + wp.cross(a, x - link_x[w, i]) * hqd[w, i]
+                om = om + a * hqd[w, i]
         v = variant[w]
         # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
         # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
@@ -169,14 +165,9 @@ def build_finger_contact(Model, unit_j, dtype, joints: int, points: int, bodies:
                     skip = True
             if not skip:
                 p = x + R * m.point_pos[s]
-                # the sphere centre's Jacobian over the finger's joints and its velocity
-                Jp = mat3J()
-                for k in range(J):
-                    if k <= k_link:
-                        col = wp.cross(vec3(A[0, k], A[1, k], A[2, k]), p - vec3(O[0, k], O[1, k], O[2, k]))
-                        Jp = Jp + wp.outer(col, unit_j(k))
-                vp = Jp * qdf
-                gen_f = vecJ()
+                vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
+                f_sum = vec3()  # the bodies' force on the sphere
+                hit = int(0)
                 for b in range(B):
                     xb = body_x[w, b]
                     # no geom of body b within the cutoff: skip its distances (their result would go unused)
@@ -208,12 +199,15 @@ def build_finger_contact(Model, unit_j, dtype, joints: int, points: int, bodies:
                             vt = v_rel - vn * n
                             ft = -m.mu * fn / slip_norm(vt, m.v_slip) * vt
                             fc = fn * n + ft  # on the finger
-                            gen_f = gen_f + wp.transpose(Jp) * fc
+                            f_sum = f_sum + fc
+                            hit = 1
                             wp.atomic_add(contact_f, w, b, -fc)
                             wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
                             wp.atomic_add(normal_sum, w, fn)
-                for k in range(J):
-                    if k <= k_link:
-                        wp.atomic_add(gen, w, f * J + k, gen_f[k])
+                if hit != 0:  # J^T f at the sphere centre: joint k's torque a_k . ((p - o_k) x f)
+                    for k in range(J):
+                        if k <= k_link:
+                            i = f * J + k
+                            wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
 
     return types.SimpleNamespace(geom_distance=geom_distance, finger_contact=finger_contact)

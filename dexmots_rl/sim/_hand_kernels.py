@@ -108,7 +108,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         e[k] = dtype(1.0)
         return e
 
-    contact = build_finger_contact(Model, unit_j, dtype, J, P, B, G)
+    contact = build_finger_contact(Model, dtype, J, P, B, G)
 
     if J == 1:  # warp's inverse starts at 2 x 2
 
