@@ -26,7 +26,7 @@ from ._articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
 from ._articulated_stepper import ArticulatedTrajectory
 from ._energy import tree_energy
 from ._hand_kernels import build_hand_kernels
-from ._object_model import MAX_SAMPLES, SLIDE
+from ._object_model import SLIDE
 from ._palm_object_kernels import build_palm_object_kernels
 from ..quaternions import quat_to_matrix
 from ._hand_sim import BELOW_TABLE, PAST_STOP_HINGE, PAST_STOP_SLIDE, HandSimulator, StepOutput
@@ -129,7 +129,7 @@ class ArticulatedSimulator(HandSimulator):
         pos, rot, half = self.scene.palm
         if len(pos) == 0:
             return None, None
-        k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, MAX_SAMPLES, len(pos))
+        k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, len(pos))
         wdt, c = self.kernels.dtype, self.table
 
         def arr(x, dtype):

@@ -21,6 +21,7 @@ import dataclasses
 import torch
 import warp as wp
 
+from ._object_model import MAX_SAMPLES
 from ._stepper import prepared, run_blocks, world_blocks
 
 __all__ = ["ArticulatedTrajectory", "StepArrays"]
@@ -32,7 +33,7 @@ TORCH_FIELDS = ("hq", "hqd", "oq", "oqd", "wrench", "normal", "tau", "q_target",
                 "pose", "tips", "joint_wrench")
 CONTROL_FIELDS = TORCH_FIELDS[6:12]  # the step's inputs after the state, in Trajectory.load's order
 # the warp-only buffers, by group (ArticulatedTrajectory.__init__ documents each)
-WARP_GROUPS = ("frames", "links", "table", "palm", "hand", "total", "scratch", "final", "variant")
+WARP_GROUPS = ("frames", "links", "table", "hand", "total", "scratch", "final", "variant")
 
 
 @dataclasses.dataclass
@@ -82,9 +83,6 @@ class ArticulatedTrajectory:
         self.hand = [new(k.dtype, nu), new(k.vec3, nb), new(k.vec3, nb),
                      wp.zeros(sub_rows, dtype=k.dtype, device=sim.device),
                      new(wp.int32, len(sim.scene.point_radius))]
-        # table + palm contact (the palm's kernel adds its push to the table's), when the palm collides
-        self.palm = [] if sim.palm_kernels is None else [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb),
-                                                         new(k.mat33, nb), new(k.mat33, nb)]
         self.total = [new(k.vec3, nb), new(k.vec3, nb)]
         self.scratch = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb),
                         new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
@@ -92,7 +90,7 @@ class ArticulatedTrajectory:
                              new(k.vec3, nb, n)]
         # each world's object variant this step (the packed parameters' last column with K > 1; else zeros)
         self.variant = torch.zeros(n, dtype=torch.int32, device=sim.torch_device)
-        self._warp = dict(zip(WARP_GROUPS, [self.frames, self.links, self.table, self.palm, self.hand, self.total, self.scratch,
+        self._warp = dict(zip(WARP_GROUPS, [self.frames, self.links, self.table, self.hand, self.total, self.scratch,
                                             self.final_frames, [wp.from_torch(self.variant)]]))
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
@@ -123,7 +121,7 @@ class ArticulatedTrajectory:
             t, g = a.tensors, a.groups
             hq, hqd, oq, oqd = t["hq"], t["hqd"], t["oq"], t["oqd"]
             wrench, normal, joint_wrench, pose, tips = t["wrench"], t["normal"], t["joint_wrench"], t["pose"], t["tips"]
-            frames, links, table, palm, hand = g["frames"], g["links"], g["table"], g["palm"], g["hand"]
+            frames, links, table, hand = g["frames"], g["links"], g["table"], g["hand"]
             total, scratch, final = g["total"], g["scratch"], g["final"]
             variant = g["variant"][0][lo:hi]
 
@@ -141,12 +139,11 @@ class ArticulatedTrajectory:
                 out.append((k.frames, dim, [model, variant, state[2], state[3], *fr]))
                 out.append((h.link_frames, (dim, sim.scene.num_fingers), [hand_model, state[0], *lk]))
                 if k.table:
-                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, *tb, *tb]))
-                if palm:
-                    with_palm = [rows(x, s) for x in palm]
+                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, MAX_SAMPLES,
+                                                                               *tb]))
+                if sim.palm_kernels is not None:  # the palm's push adds to the table's
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
-                                [palm_model, variant, *fr, dt, *tb, *with_palm]))
-                    tb = with_palm
+                                [palm_model, variant, *fr, dt, MAX_SAMPLES, *tb]))
                 out.append((h.finger_contact, (dim, num_links),
                             [hand_model, variant, state[1], *lk, *fr, gen, hand_f, hand_t, step_normal, touching,
                              only_touching, points_per_link, dt]))

@@ -48,14 +48,13 @@ class ObjectKernels:
 
 
 @functools.lru_cache(maxsize=None)
-def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, table: bool):
-    """The kernels for an object tree of ``num_bodies`` bodies (base + parts), a free or fixed base,
-    ``samples`` table-contact samples per body, with or without a table."""
+def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
+    """The kernels for an object tree of ``num_bodies`` bodies (base + parts), a free or fixed base, with or
+    without a table (its samples per body are a launch argument of ``table_contact``)."""
     dtype = float_type
     B = int(num_bodies)
     NP = B - 1
     FREE = bool(free)
-    S = int(samples)
     TABLE = bool(table) and FREE
     assert NP >= 1 or FREE, "a fixed object needs a moving part"
     NPV = max(NP, 1)  # warp types need a positive size; with NP == 0 the joint block is compiled out
@@ -381,5 +380,5 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, samples: int, 
         return m.table_z[v] + rad - ps[2], vec3(dtype(0.0), dtype(0.0), dtype(1.0))
 
     return ObjectKernels(Model=Model, substep=substep, frames=frames, table=TABLE,
-                         table_contact=build_surface_contact(dtype, Model, S, 1, table_top),
+                         table_contact=build_surface_contact(dtype, Model, 1, table_top),
                          sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)

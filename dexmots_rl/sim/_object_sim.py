@@ -90,7 +90,7 @@ class ObjectSimulator:
         self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         self.table = table or TableContact()
-        self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free, MAX_SAMPLES,
+        self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free,
                                             tree.table_height is not None)
         self.model = self._make_model(np.asarray(gravity, dtype=np.float64))
         # [N] int32: the variant each world simulates (see the module docstring)
@@ -203,8 +203,8 @@ class ObjectSimulator:
             wp.launch(k.frames, dim=n, inputs=[self.model, variant, q_in, qd_in], outputs=frames, device=self.device)
             contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
             if k.table:
-                wp.launch(k.table_contact, dim=(n, nb), device=self.device,  # in place
-                          inputs=[self.model, variant, *frames, wdt(self.sub_dt), *contact], outputs=contact)
+                wp.launch(k.table_contact, dim=(n, nb), device=self.device,  # adds into the (zero) contact
+                          inputs=[self.model, variant, *frames, wdt(self.sub_dt), MAX_SAMPLES], outputs=contact)
             q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
             wp.launch(k.substep, dim=n, device=self.device,
                       inputs=[self.model, variant, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),

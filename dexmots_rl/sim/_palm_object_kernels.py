@@ -29,10 +29,10 @@ class PalmObjectKernels:
 
 
 @functools.lru_cache(maxsize=None)
-def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: int):
-    """The palm kernel for ``boxes`` palm boxes against ``num_bodies`` bodies of ``samples`` samples each."""
+def build_palm_object_kernels(float_type, num_bodies: int, boxes: int):
+    """The palm kernel for ``boxes`` palm boxes against ``num_bodies`` bodies."""
     dtype = float_type
-    S, NB = int(samples), int(boxes)
+    NB = int(boxes)
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
 
@@ -59,5 +59,5 @@ def build_palm_object_kernels(float_type, num_bodies: int, samples: int, boxes: 
         dn = box_distance(m.box_half[k], wp.transpose(Rb) * (ps - m.box_pos[k]))
         return rad - dn[0], Rb * vec3(dn[1], dn[2], dn[3])
 
-    return PalmObjectKernels(Model=Model, palm_contact=build_surface_contact(dtype, Model, S, NB, palm_box),
+    return PalmObjectKernels(Model=Model, palm_contact=build_surface_contact(dtype, Model, NB, palm_box),
                              vec3=vec3, mat33=mat33)

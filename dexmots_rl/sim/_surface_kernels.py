@@ -19,13 +19,14 @@ from ._kernel_funcs import build_funcs
 __all__ = ["build_surface_contact"]
 
 
-def build_surface_contact(dtype, Model, samples: int, surfaces: int, surface):
-    """The kernel of ``surfaces`` fixed surfaces against bodies of ``samples`` samples each. ``Model`` (a wp.struct)
-    holds ``sample_pos``/``sample_radius`` [V, B, S] and the law's ``ke``, ``beta``, ``kd``, ``mu``, ``v_slip``;
+def build_surface_contact(dtype, Model, surfaces: int, surface):
+    """The kernel of ``surfaces`` fixed surfaces against the bodies' samples. ``Model`` (a wp.struct) holds
+    ``sample_pos``/``sample_radius`` [V, B, S] and the law's ``ke``, ``beta``, ``kd``, ``mu``, ``v_slip``;
     ``surface(m, v, k, ps, rad)`` (a wp.func) returns the penetration (m) of the sample sphere at ``ps`` (world) of
     radius ``rad`` into surface k (of object variant v) and the surface's outward unit normal there. The kernel adds
-    the push on each body to the contact it is given (``in_*``) into ``out_*`` (the same arrays: in place)."""
-    S, K = int(samples), int(surfaces)
+    (atomically) the push on each body to the contact arrays it is given, so the table's and the palm's kernels
+    add into the same ones."""
+    K = int(surfaces)
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     surface_contact = build_funcs(dtype).surface_contact
@@ -40,16 +41,12 @@ def build_surface_contact(dtype, Model, samples: int, surfaces: int, surface):
         body_v: wp.array2d(dtype=vec3),
         body_w: wp.array2d(dtype=vec3),
         dt: dtype,
-        in_f: wp.array2d(dtype=vec3),  # [N, B] in: force on the body (N)
-        in_t: wp.array2d(dtype=vec3),  # [N, B] torque about its com (N m)
-        in_Kvv: wp.array2d(dtype=mat33),  # [N, B] dt x viscous friction seen at the com
-        in_Kvw: wp.array2d(dtype=mat33),
-        in_Kww: wp.array2d(dtype=mat33),
-        out_f: wp.array2d(dtype=vec3),  # [N, B] out: in + these surfaces' push
-        out_t: wp.array2d(dtype=vec3),
-        out_Kvv: wp.array2d(dtype=mat33),
-        out_Kvw: wp.array2d(dtype=mat33),
-        out_Kww: wp.array2d(dtype=mat33),
+        num_samples: int,  # S, a launch argument so the loop over samples stays a loop (see below)
+        contact_f: wp.array2d(dtype=vec3),  # [N, B] out (atomic): force on the body (N)
+        contact_t: wp.array2d(dtype=vec3),  # [N, B] out (atomic): torque about its com (N m)
+        contact_Kvv: wp.array2d(dtype=mat33),  # [N, B] out (atomic): dt x viscous friction seen at the com
+        contact_Kvw: wp.array2d(dtype=mat33),
+        contact_Kww: wp.array2d(dtype=mat33),
     ):
         w, b = wp.tid()
         v = variant[w]
@@ -58,12 +55,10 @@ def build_surface_contact(dtype, Model, samples: int, surfaces: int, surface):
         c = body_c[w, b]
         vc = body_v[w, b]
         om = body_w[w, b]
-        f_sum = vec3()
-        t_sum = vec3()
-        Kvv = mat33()
-        Kvw = mat33()
-        Kww = mat33()
-        for s in range(S):
+        # each sample adds its own contact (atomics, in sample order): nothing is carried from one sample to the
+        # next, so the loop's adjoint is exact and visits each sample once (unrolled, the adjoint zeroed every
+        # sample's adjoint variables first: most of its time)
+        for s in range(num_samples):
             rad = m.sample_radius[v, b, s]
             if rad >= dtype(0.0):
                 ps = x + R * m.sample_pos[v, b, s]
@@ -72,17 +67,12 @@ def build_surface_contact(dtype, Model, samples: int, surfaces: int, surface):
                     if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                         r = ps - n * rad - c
                         f, Pc = surface_contact(pen, n, vc + wp.cross(om, r), m.ke, m.beta, m.kd, m.mu, m.v_slip, dt)
-                        f_sum = f_sum + f
-                        t_sum = t_sum + wp.cross(r, f)
                         # P at the contact point moved to the com (the point's velocity is V - [r]x w)
                         Sr = wp.skew(r)
-                        Kvv = Kvv + Pc
-                        Kvw = Kvw - Pc * Sr
-                        Kww = Kww + wp.transpose(Sr) * Pc * Sr
-        out_f[w, b] = in_f[w, b] + f_sum
-        out_t[w, b] = in_t[w, b] + t_sum
-        out_Kvv[w, b] = in_Kvv[w, b] + Kvv
-        out_Kvw[w, b] = in_Kvw[w, b] + Kvw
-        out_Kww[w, b] = in_Kww[w, b] + Kww
+                        wp.atomic_add(contact_f, w, b, f)
+                        wp.atomic_add(contact_t, w, b, wp.cross(r, f))
+                        wp.atomic_add(contact_Kvv, w, b, Pc)
+                        wp.atomic_add(contact_Kvw, w, b, -(Pc * Sr))
+                        wp.atomic_add(contact_Kww, w, b, wp.transpose(Sr) * Pc * Sr)
 
     return push
