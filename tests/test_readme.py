@@ -1,9 +1,9 @@
 """Every console command the README prints parses as printed.
 
 The shell commands of the README's code blocks that start with a ``dexmots-*`` script are checked in process,
-without running them: the hydra apps (``dexmots-train``, ``dexmots-table``) compose their config with ``--cfg job``
-appended, the argparse apps parse their arguments (the parser is stopped right after it accepts them), and
-``dexmots-record`` composes its ``key=value`` overrides.
+without running them: the hydra apps (``dexmots-train``, ``dexmots-table``, ``dexmots-record``) compose their
+config with ``--cfg job`` appended, the argparse apps parse their arguments (the parser is stopped right after it
+accepts them).
 """
 
 from __future__ import annotations
@@ -22,8 +22,7 @@ from dexmots_rl.envs import list_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-HYDRA_APPS = {"dexmots-train", "dexmots-table"}
-KEY_VALUE_APPS = {"dexmots-record"}
+HYDRA_APPS = {"dexmots-train", "dexmots-table", "dexmots-record"}
 
 
 def console_scripts() -> dict[str, str]:
@@ -84,9 +83,6 @@ def test_readme_command_parses(argv, monkeypatch, capsys):
         except SystemExit as exc:  # hydra exits non-zero on a bad override or a config it cannot compose
             pytest.fail(f"{' '.join(argv)}: hydra refused it (exit {exc.code}):\n{capsys.readouterr().err}")
         assert capsys.readouterr().out.strip(), f"{' '.join(argv)}: --cfg job printed no config"
-    elif script in KEY_VALUE_APPS:
-        module = importlib.import_module(console_scripts()[script].partition(":")[0])
-        module.parse_overrides(args)
     else:
         original = argparse.ArgumentParser.parse_args
 

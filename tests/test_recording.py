@@ -173,7 +173,7 @@ def test_dexmots_record_cli(tmp_path, capsys):
     assert summary["frames"] == 8 and summary["policy"] == "random"
     rec = read_recording(out)
     assert rec.num_frames == 8 and rec.num_worlds == 2 and rec.episode.max() == 1
-    for argv, match in [(["bogus=1"], "Could not override 'bogus'"), (["steps=zero"], "steps must be an integer"),
+    for argv, match in [(["bogus=1"], "bogus: no such key in the config .* its keys: checkpoint, device, episodes,"), (["steps=zero"], "steps must be an integer"),
                         (["+bogus=1"], "bogus: no such key in the config .* its keys: checkpoint, device, episodes,"),
                         (["task=stapler", "task.object=drawer_a"], "task.object: 'drawer_a' is a drawer"),
                         (["task.ramp_steps=0"], "task.ramp_steps"),

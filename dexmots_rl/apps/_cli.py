@@ -1,16 +1,13 @@
 """Shared console-script plumbing: an environment failure (full disk, read-only or missing directory,
-permissions) is one line on stderr naming the program, not a traceback; ``--help`` for the ``key=value``
-scripts."""
+permissions) is one line on stderr naming the program, not a traceback."""
 
 from __future__ import annotations
 
-import argparse
 import errno
 import os
-import sys
 from contextlib import contextmanager
 
-__all__ = ["errors_as_one_line", "os_errors_as_one_line", "printed_help"]
+__all__ = ["errors_as_one_line", "os_errors_as_one_line"]
 
 
 @contextmanager
@@ -35,13 +32,3 @@ def errors_as_one_line(prog: str, *errors: type[BaseException]):
             yield
     except errors or (ValueError,) as e:
         raise SystemExit(f"{prog}: {e}") from None
-
-
-def printed_help(prog: str, doc: str | None, argv: list[str] | None) -> bool:
-    """For a script of ``key=value`` overrides: print ``doc`` and return True when the command line
-    (``argv`` None: ``sys.argv``) asks for ``-h`` / ``--help``."""
-    if argv is not None or not any(a in ("-h", "--help") for a in sys.argv[1:]):
-        return False
-    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.print_help()
-    return True

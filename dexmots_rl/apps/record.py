@@ -41,10 +41,9 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from ..envs import ScriptedPolicy, make_env, task_config
 from ..envs.config import override_config
 from ..envs.fields import check_value, rule
-from ._cli import printed_help
 from ._policies import POLICIES, choose_policy
 
-__all__ = ["RECORD_FIELDS", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
+__all__ = ["RECORD_FIELDS", "config_options", "parse_overrides", "policy_from_checkpoint", "env_from_checkpoint", "run", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -56,12 +55,10 @@ RECORD_FIELDS = {"episodes": (int, rule(ge=1)), "out": (str, None), "num_envs": 
 
 def parse_overrides(tokens: list[str]) -> dict:
     """``["key=value", ...]`` (hydra overrides of ``configs/record/config.yaml``; a leading ``--`` is dropped)
-    -> the options: the keys of :data:`RECORD_FIELDS`, ``task`` (its name) and ``task_overrides`` (the task
-    fields the command line set, typed by the task's config). ``ValueError`` naming a bad key or value."""
+    -> the options (:func:`config_options`). ``ValueError`` naming a bad key or value."""
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
-    from .config_keys import declared_config, refuse_undeclared_command_line, refuse_unknown_keys
+    from .config_keys import refuse_undeclared_command_line
     from .train import CONFIG_DIR
 
     overrides = [token.removeprefix("--") for token in tokens]
@@ -71,6 +68,18 @@ def parse_overrides(tokens: list[str]) -> dict:
             cfg = compose("config", overrides=overrides)
     except Exception as e:  # hydra's composition errors name the override
         raise ValueError(str(e).splitlines()[0]) from None
+    return config_options(cfg, overrides)
+
+
+def config_options(cfg, overrides: list[str]) -> dict:
+    """The options of the composed record config ``cfg``: the keys of :data:`RECORD_FIELDS`, ``task`` (its
+    name) and ``task_overrides`` (the task fields the command line ``overrides`` set, typed by the task's
+    config). ``ValueError`` naming a bad key or value."""
+    from omegaconf import OmegaConf
+
+    from .config_keys import declared_config, refuse_unknown_keys
+    from .train import CONFIG_DIR
+
     refuse_unknown_keys(cfg, declared_config(str(CONFIG_DIR / "record"), (f"task={cfg.task.name}",)), free=("task",))
     values = OmegaConf.to_container(cfg, resolve=True)
     opts = {key: check_value(key, values[key], annotation, key_rule)
@@ -131,11 +140,12 @@ def _policy(opts: dict, env):
     return ScriptedPolicy(env.base_env)
 
 
-def run(argv: list[str] | None = None) -> dict:
-    """Parse ``key=value`` tokens, record, return (and print) the summary."""
+def run(argv: list[str] | dict | None = None) -> dict:
+    """Record as ``argv`` says (``key=value`` tokens, None: the command line's, or the options of
+    :func:`config_options`); return the summary."""
     from ..viz import EpisodeRecorder
 
-    opts = parse_overrides(list(sys.argv[1:] if argv is None else argv))
+    opts = argv if isinstance(argv, dict) else parse_overrides(list(sys.argv[1:] if argv is None else argv))
     if opts["checkpoint"]:
         env, data = env_from_checkpoint(opts["checkpoint"], opts["num_envs"], opts["seed"], opts["device"],
                                         opts["steps"])
@@ -168,14 +178,37 @@ def run(argv: list[str] | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    if printed_help("dexmots-record", __doc__, argv):
+    """Console entry point: a hydra app of ``configs/record/config.yaml`` (``--help`` prints the config, ``--cfg
+    job`` the composed one); ``argv``: ``key=value`` tokens recorded in this process instead."""
+    import hydra
+
+    from .. import envs  # noqa: F401  (registers the tasks' configs with hydra)
+    from .config_keys import refuse_undeclared_command_line
+    from .train import CONFIG_DIR
+
+    def record(options) -> None:  # options: () -> the options, whose bad input fails here too
+        logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
+        try:
+            summary = run(options())
+        except (ValueError, RuntimeError, OSError) as exc:
+            raise SystemExit(f"dexmots-record: {exc}") from None
+        print(json.dumps(summary))
+
+    if argv is not None:
+        record(lambda: parse_overrides(list(argv)))
         return
-    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
-    try:
-        summary = run(argv)
-    except (ValueError, RuntimeError, OSError) as exc:
-        raise SystemExit(f"dexmots-record: {exc}") from None
-    print(json.dumps(summary))
+    try:  # one line naming the known keys, not hydra's advice to add a '+' (which adds nothing)
+        refuse_undeclared_command_line(sys.argv[1:], CONFIG_DIR / "record")
+    except ValueError as e:
+        raise SystemExit(f"dexmots-record: {e}") from None
+
+    @hydra.main(config_path=str(CONFIG_DIR / "record"), config_name="config", version_base="1.3")
+    def _app(cfg) -> None:
+        from hydra.core.hydra_config import HydraConfig
+
+        record(lambda: config_options(cfg, list(HydraConfig.get().overrides.task)))
+
+    _app()
 
 
 if __name__ == "__main__":
