@@ -219,3 +219,19 @@ def test_every_body_of_the_shipped_scenes_is_drawn_where_mujoco_puts_it(xml):
         assert np.allclose(0.5 * (world.min(0) + world.max(0)), d.geom_xpos[geoms[0]], atol=1e-6), p.name
         checked += 1
     assert checked >= 4  # the claw's four links; the Allegro's 12 one-capsule links, its palm and box objects
+
+
+def test_an_env_is_recorded_from_its_tensordicts_alone(tmp_path, monkeypatch):
+    """Every body's pose rides in the env's TensorDict (``("sim", "body_pose")``): the recorder does not ask the
+    simulator (only a bare simulator, which has no TensorDict, is observed)."""
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0)
+    rollout = env.rollout(3, tensordict=env.reset(), auto_reset=False, break_when_any_done=False)
+
+    def observe(*args, **kwargs):
+        raise AssertionError("the recorder observed the simulator")
+
+    monkeypatch.setattr(env.sim, "observe", observe)
+    with EpisodeRecorder(tmp_path / "env.mcap", env) as rec:
+        rec.record_rollout(rollout)
+    recording = read_recording(tmp_path / "env.mcap")
+    assert recording.num_frames == 4 and recording.num_worlds == 2
