@@ -12,18 +12,38 @@ sim/_mesh_sdf.py).
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
+import dataclasses
 import functools
-import types
 
 import warp as wp
 
 from ._constants import FRICTION_VELOCITY
 
-__all__ = ["build_funcs"]
+__all__ = ["KernelFuncs", "build_funcs"]
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelFuncs:
+    """The functions :func:`build_funcs` builds for one float type (wp.func each; the module docstring says what
+    each does)."""
+
+    softplus: object
+    normal_force: object
+    slip_norm: object
+    body_mobility: object
+    surface_contact: object
+    axis_angle: object
+    limit_ramp: object
+    limit_slope: object
+    joint_friction: object
+    write_pose: object
+    box_distance: object
+    trilinear: object
+    grid_distance: object
 
 
 @functools.lru_cache(maxsize=None)
-def build_funcs(float_type) -> types.SimpleNamespace:
+def build_funcs(float_type) -> KernelFuncs:
     dtype = float_type
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
@@ -224,7 +244,7 @@ def build_funcs(float_type) -> types.SimpleNamespace:
             n = wp.normalize(n * wp.max(dg[0], dtype(0.0)) + beyond)
         return vec4(d, n[0], n[1], n[2])
 
-    return types.SimpleNamespace(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm,
-                                 body_mobility=body_mobility, surface_contact=surface_contact, axis_angle=axis_angle,
-                                 limit_ramp=limit_ramp, limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
-                                 box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)
+    return KernelFuncs(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm, body_mobility=body_mobility,
+                       surface_contact=surface_contact, axis_angle=axis_angle, limit_ramp=limit_ramp,
+                       limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
+                       box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)

@@ -19,7 +19,6 @@ compiler drops the adjoint terms that would only flow into the model; the contac
 import dataclasses
 import functools
 import os
-import types
 
 import warp as wp
 
@@ -27,6 +26,7 @@ from ._chain_kernels import build_chain
 from ._contact_kernels import build_contact
 from ._palm_kernels import build_palm
 from ._constants import LIMIT_WIDTH
+from ._fused_model import fused_spec
 from ._kernel_funcs import build_funcs
 from ._model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
 
@@ -81,120 +81,30 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     ``object_limited``: the hinge object has a range, held by an implicit limit spring (else compiled out).
     ``box_object``: the convex object's faces are the six of an axis-aligned box (object frame), so the
     largest face distance is ``max(|p - c| - h)`` (exact; three planes' work instead of six)."""
-    F, J, P, K = num_fingers, joints, points, planes
-    OBJ_HINGE = object_kind == OBJECT_HINGE
-    PALM = palm_boxes > 0 and palm_points > 0 and not OBJ_HINGE
-    NB, NS = palm_boxes, palm_points
-    module_options = {"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH}
-    if PALM and NS > 16:
-        module_options["max_unroll"] = NS  # the sample loop must unroll for an exact adjoint
-    HINGES_ONLY = bool(hinges_only)
+    spec = fused_spec(float_type, joints, planes, shape, hinges_only, object_kind == OBJECT_HINGE, object_limited,
+                      box_object, palm_boxes, palm_points)
+    F, J, P = num_fingers, joints, points
+    OBJ_HINGE, PALM, HINGES_ONLY = spec.hinge_object, spec.palm, spec.hinges_only
     OBJ_LIMITED = bool(object_limited) and OBJ_HINGE
-    BOX = bool(box_object)
-    dtype = float_type
-    vec3 = wp.types.vector(3, dtype)
-    vec4 = wp.types.vector(4, dtype)
-    mat33 = wp.types.matrix((3, 3), dtype)
-    vecJ = wp.types.vector(J, dtype)
-    matJ = wp.types.matrix((J, J), dtype)
-    quat = wp.types.quaternion(dtype)
-    matJ3 = wp.types.matrix((J, 3), dtype)
-    vec7 = wp.types.vector(7, dtype)  # a finger's saved result: force, torque on the object, normal force
-    vecC = wp.types.vector(7 + J, dtype)  # a contact's saved result: force, point, normal force, joint forces
-    mat43 = wp.types.matrix((4, 3), dtype)  # Jacobian of (signed distance, normal) w.r.t. the query point
-    matJJ1 = wp.types.matrix((J, J + 1), dtype)  # a link's mass-matrix block and bias forces, side by side
+    module_options = {"optimization_level": OPT_LEVEL, "fast_math": FAST_MATH}
+    if PALM and palm_points > 16:
+        module_options["max_unroll"] = palm_points  # the sample loop must unroll for an exact adjoint
+    dtype, vec3, mat33, quat, Model, Saved = spec.dtype, spec.vec3, spec.mat33, spec.quat, spec.Model, spec.Saved
+    vecJ, matJ, matJ3, vec7, vecC, matJJ1 = spec.vecJ, spec.matJ, spec.matJ3, spec.vec7, spec.vecC, spec.matJJ1
 
-    @wp.struct
-    class Model:
-        base_pos: wp.array(dtype=vec3)
-        base_rot: wp.array(dtype=mat33)
-        off_pos: wp.array(dtype=vec3)
-        off_rot: wp.array(dtype=mat33)
-        axis: wp.array(dtype=vec3)
-        jtype: wp.array(dtype=wp.int32)
-        mass: wp.array(dtype=dtype)
-        com: wp.array(dtype=vec3)
-        inertia: wp.array(dtype=mat33)
-        armature: wp.array(dtype=dtype)
-        damping: wp.array(dtype=dtype)
-        friction: wp.array(dtype=dtype)
-        lower: wp.array(dtype=dtype)
-        upper: wp.array(dtype=dtype)
-        limit_ke: wp.array(dtype=dtype)
-        effort: wp.array(dtype=dtype)  # PD drive saturation per dof (0: none)
-        point_pos: wp.array(dtype=vec3)
-        point_radius: wp.array(dtype=dtype)
-        link_reach: wp.array(dtype=dtype)  # [F * J] m: max over a link's spheres of |centre| + radius (link frame)
-        tip_pos: wp.array(dtype=vec3)
-        obj_base_pos: vec3
-        obj_base_rot: mat33
-        obj_axis: vec3
-        obj_mass: dtype
-        obj_com: vec3
-        obj_inertia: mat33
-        obj_axial_inertia: dtype  # hinge: inertia about the axis (constant, the body turns about it) + armature
-        obj_inv_inertia: mat33  # free: the inverse of obj_inertia (the contacts' implicit damping reads it)
-        obj_bound: dtype  # radius of a sphere about the object origin that encloses its geometry
-        if OBJ_LIMITED:  # the hinge object's range (rad) and its limit spring (N m/rad)
-            obj_lower: dtype
-            obj_upper: dtype
-            obj_limit_ke: dtype
-        planes: wp.array(dtype=vec4)
-        if BOX:  # the convex object is an axis-aligned box: its centre and half extents (object frame, m)
-            obj_box_center: vec3
-            obj_box_half: vec3
-        sdf: wp.array3d(dtype=dtype)  # signed distance grid for non-convex meshes
-        sdf_origin: vec3
-        sdf_cell: dtype
-        shape_size: vec3
-        gravity: vec3
-        # contact: stiffness, damping, sharpness, friction, slip velocity, surface smoothing
-        ke: dtype
-        kd: dtype
-        beta: dtype
-        mu: dtype
-        v_slip: dtype
-        smooth: dtype
-        if PALM:  # palm boxes (world frame) and the object's surface samples (object frame)
-            palm_pos: wp.array(dtype=vec3)
-            palm_rot: wp.array(dtype=mat33)
-            palm_half: wp.array(dtype=vec3)
-            obj_point_pos: wp.array(dtype=vec3)
-            obj_point_radius: wp.array(dtype=dtype)
-            palm_ke: dtype
-            palm_beta: dtype
-            palm_smooth: dtype
-
-    @wp.struct
-    class Saved:
-        """Per-call results a taped step keeps for the reverse pass (rows: a substep's output rows;
-        columns: finger, or sample sphere). Arrays with no rows when the step is not taped."""
-
-        finger: wp.array2d(dtype=vec7)  # finger_step: force, torque on the object, normal force
-        contact: wp.array2d(dtype=vecC)  # point_contact results (see its docstring)
-        sdf: wp.array2d(dtype=vec4)  # object_sdf: distance, normal
-        sdf_jac: wp.array2d(dtype=mat43)  # polytope_sdf: d(distance, normal)/d(point), for its adjoint
-        law: wp.array2d(dtype=mat43)  # contact_force: n, cp, v_rel and (softplus, its slope, slip norm)
-        inertia: wp.array2d(dtype=matJJ1)  # link_inertia: the link's [M | bias] contribution
-
-    contact = build_contact(types.SimpleNamespace(
-        dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, vecJ=vecJ, matJ3=matJ3, vecC=vecC, mat43=mat43,
-        Model=Model, Saved=Saved, J=J, K=K, shape=shape, hinges_only=HINGES_ONLY, box=BOX, hinge_object=OBJ_HINGE))
-    unit_j, point_jacobian = contact.unit_j, contact.point_jacobian
+    contact = build_contact(spec)
+    unit_j = contact.unit_j
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
-    chain = build_chain(types.SimpleNamespace(
-        dtype=dtype, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, matJ3=matJ3, matJJ1=matJJ1, vecC=vecC,
-        Model=Model, Saved=Saved, J=J, hinges_only=HINGES_ONLY, point_jacobian=point_jacobian,
-        point_jacobian_vjp=contact.point_jacobian_vjp))
+    chain = build_chain(dataclasses.replace(spec, point_jacobian=contact.point_jacobian,
+                                            point_jacobian_vjp=contact.point_jacobian_vjp))
     fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
     mass_block, bias_column, link_inertia = chain.mass_block, chain.bias_column, chain.link_inertia
     joint_forces = chain.joint_forces
     palm = None
     if PALM:
-        palm = build_palm(types.SimpleNamespace(
-            dtype=dtype, vec3=vec3, vec4=vec4, mat33=mat33, Model=Model, NB=NB, NS=NS, fixed_vec3=fixed_vec3,
-            fixed_mat33=fixed_mat33, fixed=fixed, softplus=contact.softplus, smooth_box=contact.smooth_box,
-            box_face_max=contact.box_face_max))
+        palm = build_palm(dataclasses.replace(spec, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, fixed=fixed,
+                                              softplus=contact.softplus, smooth_box=contact.smooth_box,
+                                              box_face_max=contact.box_face_max))
     palm_wrench = palm.palm_wrench if PALM else None
 
     funcs = build_funcs(dtype)
@@ -215,25 +125,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return pos, wp.quat_to_matrix(rq), vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2]), vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
 
     @wp.func
-    def finger_step(
-        m: Model,
-        f: int,
-        w: int,
-        r: int,
-        ro: int,
-        q: wp.array2d(dtype=dtype),
-        qd: wp.array2d(dtype=dtype),
-        tau: wp.array2d(dtype=dtype),
-        q_target: wp.array2d(dtype=dtype),
-        kp: wp.array2d(dtype=dtype),
-        kd: wp.array2d(dtype=dtype),
-        dt: dtype,
-        Ro: mat33,
-        xo: vec3,
-        vo: vec3,
-        wo: vec3,
-        saved: Saved,
-    ):
+    def finger_step(m: Model, f: int, w: int, r: int, ro: int, q: wp.array2d(dtype=dtype),
+                    qd: wp.array2d(dtype=dtype), tau: wp.array2d(dtype=dtype), q_target: wp.array2d(dtype=dtype),
+                    kp: wp.array2d(dtype=dtype), kd: wp.array2d(dtype=dtype), dt: dtype, Ro: mat33, xo: vec3, vo: vec3,
+                    wo: vec3, saved: Saved):
         """Advance finger f of world w (state row r of q/qd, written to row ro) by one substep; returns the
         contact force and torque (about xo) it puts on the object and its summed normal force, packed.
         A function rather than inline code keeps each compiled frame small: warp value-initialises every
@@ -348,25 +243,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     # the kernel's reverse pass reads the finger's result back instead of re-running it (see contact_kernels);
     # warp requires a replay to repeat the forward's signature
     @wp.func_replay(finger_step)
-    def replay_finger_step(
-        m: Model,
-        f: int,
-        w: int,
-        r: int,
-        ro: int,
-        q: wp.array2d(dtype=dtype),
-        qd: wp.array2d(dtype=dtype),
-        tau: wp.array2d(dtype=dtype),
-        q_target: wp.array2d(dtype=dtype),
-        kp: wp.array2d(dtype=dtype),
-        kd: wp.array2d(dtype=dtype),
-        dt: dtype,
-        Ro: mat33,
-        xo: vec3,
-        vo: vec3,
-        wo: vec3,
-        saved: Saved,
-    ):
+    def replay_finger_step(m: Model, f: int, w: int, r: int, ro: int, q: wp.array2d(dtype=dtype),
+                           qd: wp.array2d(dtype=dtype), tau: wp.array2d(dtype=dtype),
+                           q_target: wp.array2d(dtype=dtype), kp: wp.array2d(dtype=dtype),
+                           kd: wp.array2d(dtype=dtype), dt: dtype, Ro: mat33, xo: vec3, vo: vec3, wo: vec3,
+                           saved: Saved):
         return saved.finger[ro, f]
 
     @wp.kernel(module="unique", module_options=module_options)
@@ -496,5 +377,5 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         write_pose(body_pose, w, F * J, xo, Ro)
 
     return Kernels(Model=Model, Saved=Saved, substep=substep, observe=observe, object_sdf=contact.object_sdf,
-                   contact_force=contact.contact_force, link_inertia=link_inertia, palm=palm, vec3=vec3, vec4=vec4,
-                   mat33=mat33, vec7=vec7, vecC=vecC, vecJ=vecJ, matJ3=matJ3, mat43=mat43, matJJ1=matJJ1)
+                   contact_force=contact.contact_force, link_inertia=link_inertia, palm=palm, vec3=vec3, vec4=spec.vec4,
+                   mat33=mat33, vec7=vec7, vecC=vecC, vecJ=vecJ, matJ3=matJ3, mat43=spec.mat43, matJJ1=matJJ1)

@@ -20,20 +20,28 @@ finite differences in tests/test_palm.py.
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
-import types
+import dataclasses
 
 import warp as wp
 
 from ._constants import CONTACT_CUTOFF
 from ._kernel_funcs import build_funcs
 
-__all__ = ["build_palm"]
+__all__ = ["PalmFuncs", "build_palm"]
 
 
-def build_palm(t) -> types.SimpleNamespace:
-    """The palm-contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3,
-    vec4, mat33, Model, NB (palm boxes), NS (object samples), fixed_vec3, fixed_mat33, fixed, softplus,
-    smooth_box, box_face_max)."""
+@dataclasses.dataclass(frozen=True)
+class PalmFuncs:
+    """The palm-contact functions :func:`build_palm` builds (wp.func each)."""
+
+    box_sdf: object  # a point's smooth signed distance to a palm box, and the normal
+    palm_point: object  # one object sample's push from the palm boxes
+    palm_wrench: object  # the palm's whole push on the object (force, torque about its origin)
+
+
+def build_palm(t) -> PalmFuncs:
+    """The palm-contact functions for the types and scene constants in ``t`` (a :class:`~._fused_model.FusedSpec`
+    with fixed_vec3, fixed_mat33, fixed, softplus, smooth_box and box_face_max added)."""
     dtype, vec3, vec4, mat33, Model = t.dtype, t.vec3, t.vec4, t.mat33, t.Model
     NB, NS = t.NB, t.NS
     fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
@@ -159,4 +167,4 @@ def build_palm(t) -> types.SimpleNamespace:
         return (elastic_f + scale_n * damping_f + scale_t * friction_f,
                 elastic_t + scale_n * damping_t + scale_t * friction_t)
 
-    return types.SimpleNamespace(box_sdf=box_sdf, palm_point=palm_point, palm_wrench=palm_wrench)
+    return PalmFuncs(box_sdf=box_sdf, palm_point=palm_point, palm_wrench=palm_wrench)
