@@ -122,7 +122,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         o = F * J
         rq = quat(q[w, o + 4], q[w, o + 5], q[w, o + 6], q[w, o + 3])
         pos = vec3(q[w, o], q[w, o + 1], q[w, o + 2])
-        return pos, wp.quat_to_matrix(rq), vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2]), vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
+        v = vec3(qd[w, o], qd[w, o + 1], qd[w, o + 2])
+        return pos, wp.quat_to_matrix(rq), v, vec3(qd[w, o + 3], qd[w, o + 4], qd[w, o + 5])
 
     @wp.func
     def finger_step(m: Model, f: int, w: int, r: int, ro: int, q: wp.array2d(dtype=dtype),
@@ -251,25 +252,11 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         return saved.finger[ro, f]
 
     @wp.kernel(module="unique", module_options=module_options)
-    def substep(
-        m: Model,
-        q: wp.array2d(dtype=dtype),
-        qd: wp.array2d(dtype=dtype),
-        tau: wp.array2d(dtype=dtype),
-        q_target: wp.array2d(dtype=dtype),
-        kp: wp.array2d(dtype=dtype),
-        kd: wp.array2d(dtype=dtype),
-        params: wp.array2d(dtype=dtype),
-        ext: wp.array2d(dtype=dtype),
-        wrench: wp.array2d(dtype=dtype),
-        cforce: wp.array(dtype=dtype),
-        saved: Saved,
-        w0: int,
-        in_base: int,
-        out_base: int,
-        dt: dtype,
-        inv_substeps: dtype,
-    ):
+    def substep(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), tau: wp.array2d(dtype=dtype),
+                q_target: wp.array2d(dtype=dtype), kp: wp.array2d(dtype=dtype), kd: wp.array2d(dtype=dtype),
+                params: wp.array2d(dtype=dtype), ext: wp.array2d(dtype=dtype), wrench: wp.array2d(dtype=dtype),
+                cforce: wp.array(dtype=dtype), saved: Saved, w0: int, in_base: int, out_base: int, dt: dtype,
+                inv_substeps: dtype):
         """One substep of worlds w0 + tid. q, qd, wrench, cforce hold a whole trajectory: the state of
         world w is read from row in_base + w and written to row out_base + w (every row written once,
         so warp's adjoint stays exact and one set of arrays serves all substeps of an env step)."""
@@ -348,14 +335,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         cforce[ro] = cforce[r] + inv_substeps * c_sum
 
     @wp.kernel(module="unique", module_options=module_options)
-    def observe(
-        m: Model,
-        q: wp.array2d(dtype=dtype),
-        qd: wp.array2d(dtype=dtype),
-        body_pose: wp.array2d(dtype=dtype),
-        tips: wp.array2d(dtype=dtype),
-        w0: int,
-    ):
+    def observe(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), body_pose: wp.array2d(dtype=dtype),
+                tips: wp.array2d(dtype=dtype), w0: int):
         """Poses (pos + wxyz quat) of every hand link and the object, and fingertip positions."""
         w = w0 + wp.tid()
         for f in range(F):
