@@ -22,13 +22,22 @@ def _tree_object(base: str) -> ObjectAsset:
     ), base=base)
 
 
+@pytest.mark.parametrize("masses", ["model", "parameters"])
 @pytest.mark.parametrize("base", ["free", "fixed"])
-def test_accelerations_match_mujoco(base):
+def test_accelerations_match_mujoco(base, masses):
     """Mass matrix and bias forces (Coriolis, centrifugal, gravity) through the accelerations of one tiny step
-    from a random state, against MuJoCo's qacc (no contact, no joint springs)."""
+    from a random state, against MuJoCo's qacc (no contact, no joint springs). ``parameters``: every moving
+    body's mass parameter ``<body>/mass`` set apart from the model's (each by its own factor) and MuJoCo's
+    model given the same masses, the inertias scaled with them."""
     import mujoco
 
     tree, m = load_object_tree(_tree_object(base))
+    factors = dict(zip(tree.moving_bodies, (1.7, 0.6, 2.3, 0.8, 1.3)))
+    if masses == "parameters":
+        for b, factor in factors.items():
+            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, tree.body_names[b])
+            m.body_mass[body] *= factor
+            m.body_inertia[body] *= factor
     d = mujoco.MjData(m)
     rng = np.random.default_rng(0)
     qpos = m.qpos0.copy()
@@ -49,7 +58,13 @@ def test_accelerations_match_mujoco(base):
         ref[3:6] = rot @ ref[3:6]
     dt = 1e-7
     sim = ObjectSimulator(tree, 1, dtype=torch.float64, substeps=1, sub_dt=dt)
-    params = sim.default_params().apply(torch.zeros_like)
+    params = sim.default_params()
+    for name in tree.param_names:  # no joint damping, friction or spring (the masses stay the model's)
+        if not name.endswith("/mass"):
+            params[name] = torch.zeros_like(params[name])
+    if masses == "parameters":
+        for b, factor in factors.items():
+            params[f"{tree.body_names[b]}/mass"] = params[f"{tree.body_names[b]}/mass"] * factor
     _, qd_next = sim.step(torch.tensor(qpos)[None], qd, params)
     acc = ((qd_next - qd) / dt)[0].numpy()
     np.testing.assert_allclose(acc, ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())

@@ -92,6 +92,27 @@ def test_articulated_parameter_gradients_match_central_differences():
     np.testing.assert_allclose(xg.grad.numpy(), fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
+def test_replay_loss_gradient_wrt_masses_and_contact_friction_matches_central_differences():
+    """The replay loss's gradient w.r.t. the log of the spray bottle's masses (its base's and its trigger's) and of
+    the contact friction coefficients (the fingers' on it, the table's under it), in float64, while the hand
+    operates it: against central differences, each one non-zero (the data says something of every one)."""
+    names = ["object/mass", "object/trigger/mass", "hand/friction", "table/friction"]
+    data = synthetic_trajectories("spray_bottle", {}, worlds=2, steps=12, seed=0, position_noise=0.0,
+                                  angle_noise=0.0)
+    problem = ShootingProblem(data, names, segment_steps=4, max_segments=3, validation=0.0)
+    assert problem.space.log.all()  # positive: identified through their logarithm
+    x = torch.as_tensor(problem.space.to_z(problem.space.initial * np.array([1.3, 0.8, 0.7, 1.2])))
+    _, grad = problem.loss_and_grad(x)
+    eps, fd = 1e-6, np.zeros(len(x))
+    for i in range(len(x)):
+        plus, minus = x.clone(), x.clone()
+        plus[i] += eps
+        minus[i] -= eps
+        fd[i] = (problem.loss(plus.numpy()) - problem.loss(minus.numpy())) / (2 * eps)
+    assert (np.abs(fd) > 1e-6 * np.abs(fd).max()).all() and np.abs(fd).max() > 1e-3, fd
+    np.testing.assert_allclose(grad.numpy(), fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
+
+
 @pytest.mark.parametrize("method", ["gn", "lbfgs"])
 @pytest.mark.parametrize("scale", [0.5, 2.0])
 def test_recovers_known_damping_and_friction(knob_data, method, scale):

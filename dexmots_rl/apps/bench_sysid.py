@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 def add_sysid_parser(sub) -> None:
     p = sub.add_parser("sysid", help="identification cost: gradients vs FD Gauss-Newton vs CMA-ES")
     p.add_argument("--task", default="screw_claw")
-    p.add_argument("--object", default=None, help="the library object of operate / a tool task")
+    p.add_argument("--object", default=None, help="the library object (or URDF) of operate / a tool task")
+    p.add_argument("--initial", default=None, help="the hand's start (task.initial; e.g. open: no pre-grasp search)")
     p.add_argument("--params", nargs="+", default=None, help="parameter names, in the order counts take them")
     p.add_argument("--counts", type=int, nargs="+", default=None, help="parameter counts (default: all of them)")
     p.add_argument("--truth", nargs="+", default=[], metavar="NAME=VALUE",
@@ -69,9 +70,9 @@ def run_sysid_bench(args) -> dict:
     from ..sysid import ShootingProblem, identify, synthetic_trajectories
     from ..sysid.problem import is_positive
 
-    overrides = {"object": args.object} if args.object else {}
+    overrides = {key: value for key, value in (("object", args.object), ("initial", args.initial)) if value}
     env = make_env(args.task, num_envs=1, raw=True, **overrides)
-    scene_values = {k: v for k, v in env.sim.scene.default_param_values().items() if k != "variant"}
+    scene_values = {k: v for k, v in env.sim.default_param_values().items() if k != "variant"}
     truth = _truth(args, scene_values)
     names = list(args.params or scene_values)
     counts = args.counts or [len(names)]

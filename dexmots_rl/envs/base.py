@@ -303,7 +303,7 @@ class DexEnv(EnvBase):
         """Per-episode physical parameters ``{name: [n, 1]}``: uniform in :attr:`param_ranges` (seeded by
         the env's generator), the MJCF's value for the others."""
         out = {}
-        for name, value in self.sim.scene.default_param_values().items():
+        for name, value in self.sim.default_param_values().items():
             rng = self.param_ranges.get(name)
             out[name] = (self._uniform(n, rng) if rng is not None
                          else torch.full((n, 1), value, dtype=self.dtype, device=self.device))

@@ -22,11 +22,11 @@ import numpy as np
 import torch
 import warp as wp
 
-from ._articulated_scene import ArticulatedScene, ObjectGeoms, object_geoms
+from ._articulated_scene import HAND_FRICTION_PARAM, ArticulatedScene, ObjectGeoms, object_geoms
 from ._articulated_stepper import ArticulatedTrajectory
 from ._energy import tree_energy
 from ._hand_kernels import build_hand_kernels
-from ._object_model import SLIDE
+from ._object_model import SLIDE, TABLE_FRICTION_PARAM
 from ._palm_object_kernels import build_palm_object_kernels
 from ..quaternions import quat_to_matrix
 from ._hand_sim import BELOW_TABLE, PAST_STOP_HINGE, PAST_STOP_SLIDE, HandSimulator, StepOutput
@@ -180,7 +180,10 @@ class ArticulatedSimulator(HandSimulator):
         m.body_inv_mass, m.body_inv_inertia = arr(inv_mass, wdt), arr(inv_inertia, k.mat33)
         m.gravity = k.vec3(*s.gravity)
         m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
-        m.mu, m.v_slip = wdt(c.friction), wdt(c.slip_velocity)
+        m.v_slip = wdt(c.slip_velocity)  # the friction coefficient is the parameter "hand/friction"
+        m.body_mass = arr(np.stack([t.mass for t in self.variants]), wdt)
+        m.first_moving, m.mass_col = self.tree.moving_bodies.start, 4 * self.tree.num_parts
+        m.mu_col = self.scene.param_names.index(HAND_FRICTION_PARAM)
         return m
 
     def observe(self, joint_q, joint_qd=None, params=None):
@@ -201,6 +204,13 @@ class ArticulatedSimulator(HandSimulator):
             wp.launch(h.observe, dim=n, inputs=[self.hand_model, hq, frames[0], frames[1]],
                       outputs=[wp.from_torch(pose), wp.from_torch(tips)], device=self.device)
         return pose.view(-1, self.num_bodies, 7), tips.view(-1, self.scene.num_fingers, 3)
+
+    def default_param_values(self) -> dict[str, float]:
+        """The scene's parameter values with this simulator's contact laws' friction coefficients."""
+        values = {**self.scene.default_param_values(), HAND_FRICTION_PARAM: float(self.contact.friction)}
+        if self.tree.table_contact:
+            values[TABLE_FRICTION_PARAM] = float(self.table.friction)
+        return values
 
     def check_params(self, params) -> None:
         self.variant_of(params)  # the kernels index with it

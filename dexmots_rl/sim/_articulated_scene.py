@@ -12,12 +12,15 @@ import dataclasses
 
 import numpy as np
 
-from ._constants import GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, SDF_PAD
+from ._constants import (GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, GEOM_NONE, GEOM_SDF, GEOM_SPHERE, HAND_FRICTION,
+                         SDF_PAD)
 from ._mesh_sdf import sdf_grid
 from ._mjcf_shapes import AssetError, _quat_to_mat
 from ._object_model import ObjectTree
 
-__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms"]
+__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms", "HAND_FRICTION_PARAM"]
+
+HAND_FRICTION_PARAM = "hand/friction"  # the fingers' Coulomb coefficient on the object
 
 
 @dataclasses.dataclass
@@ -176,11 +179,14 @@ class ArticulatedScene:
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        """The joints' named parameters, then ``"variant"`` (the world's object variant) with K > 1."""
-        return self.tree.param_names + (("variant",) if self.num_variants > 1 else ())
+        """The object tree's named parameters (its joints', its moving bodies' masses, the table's friction), the
+        fingers' friction coefficient ``"hand/friction"``, then ``"variant"`` (the world's object variant) with
+        K > 1."""
+        return self.tree.param_names + (HAND_FRICTION_PARAM,) + (("variant",) if self.num_variants > 1 else ())
 
     def default_param_values(self) -> dict[str, float]:
-        return {**self.tree.default_param_values(), **({"variant": 0.0} if self.num_variants > 1 else {})}
+        return {**self.tree.default_param_values(), HAND_FRICTION_PARAM: HAND_FRICTION,
+                **({"variant": 0.0} if self.num_variants > 1 else {})}
 
     @property
     def variant_q0(self) -> np.ndarray:

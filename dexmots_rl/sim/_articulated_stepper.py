@@ -139,13 +139,14 @@ class ArticulatedTrajectory:
                 out.append((k.frames, dim, [model, variant, state[2], state[3], *fr]))
                 out.append((h.link_frames, (dim, sim.scene.num_fingers), [hand_model, state[0], *lk]))
                 if k.table:
-                    out.append((k.table_contact, (dim, sim.tree.num_bodies), [model, variant, *fr, dt, MAX_SAMPLES,
-                                                                               *tb]))
+                    out.append((k.table_contact, (dim, sim.tree.num_bodies),
+                                [model, variant, block[4], k.table_mu_col, *fr, dt, MAX_SAMPLES, *tb]))
                 if sim.palm_kernels is not None:  # the palm's push adds to the table's
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
-                                [palm_model, variant, *fr, dt, MAX_SAMPLES, *tb]))
+                                [palm_model, variant, block[4], -1, *fr, dt, MAX_SAMPLES, *tb]))  # its own mu
                 out.append((h.finger_contact, (dim, num_links),
-                            [hand_model, variant, state[1], *lk, *fr, gen, hand_f, hand_t, step_normal, touching,
+                            [hand_model, variant, block[4], state[1], *lk, *fr, gen, hand_f, hand_t, step_normal,
+                             touching,
                              only_touching, points_per_link, dt]))
                 out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
                                                   rows(wrench, s), rows(normal, s), rows(joint_wrench, s),

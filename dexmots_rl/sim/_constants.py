@@ -7,7 +7,7 @@ float32 and float64 builds read the same value.
 from __future__ import annotations
 
 __all__ = ["CONTACT_CUTOFF", "LSE_CUTOFF", "LIMIT_WIDTH", "FRICTION_VELOCITY", "SDF_PAD", "GEOM_NONE", "GEOM_BOX",
-           "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF", "GEOM_CONVEX"]
+           "GEOM_SPHERE", "GEOM_CAPSULE", "GEOM_CYLINDER", "GEOM_SDF", "GEOM_CONVEX", "HAND_FRICTION", "TABLE_FRICTION"]
 
 # A contact (finger sphere, palm or table sample) at a gap wider than this many 1/sharpness feels nothing: its
 # softplus penalty is below e^-12 of the force at touching, and skipping it saves the law's work.
@@ -20,6 +20,10 @@ FRICTION_VELOCITY = 0.05  # rad/s (or m/s): a joint's Coulomb friction is f tanh
 # largest is 14 mm), so the centre of a sphere that touches the mesh is inside the grid, where the distance is
 # interpolated
 SDF_PAD = 0.02
+# Coulomb coefficients by default: the fingers' on the object (ContactParams) and the table's (TableContact); in an
+# articulated scene each is also the per-world parameter "hand/friction" / "table/friction"
+HAND_FRICTION = 1.0
+TABLE_FRICTION = 0.8
 
 # Collision geometry. A tool scene's object bodies carry a list of geoms (GEOM_NONE pads it); the knob and cube
 # scenes' one object is a single shape, a convex polytope (GEOM_CONVEX), a sphere, a cylinder or a mesh's

@@ -112,6 +112,7 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
     def finger_contact(
         m: Model,
         variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
+        params: wp.array2d(dtype=dtype),  # [N, P] the packed parameters (the bodies' masses, the friction)
         hqd: wp.array2d(dtype=dtype),  # [N, F*J] rad/s
         link_x: wp.array2d(dtype=vec3),  # [N, F*J] link origins = joint origins (m, world; link_frames)
         link_R: wp.array2d(dtype=mat33),  # [N, F*J] link rotations (link -> world)
@@ -194,10 +195,15 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
                             vn = wp.dot(v_rel, n)
                             # the one contact law (kernel_funcs.normal_force): its damping implicit against the
                             # body's mobility at the contact (the finger is far heavier)
-                            mobility = body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb, r, n)
+                            # (a moving body's model mobility times its model mass over its mass parameter)
+                            lighter = dtype(1.0)
+                            if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
+                                lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
+                            mobility = lighter * body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb,
+                                                               r, n)
                             fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
                             vt = v_rel - vn * n
-                            ft = -m.mu * fn / slip_norm(vt, m.v_slip) * vt
+                            ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt
                             fc = fn * n + ft  # on the finger
                             f_sum = f_sum + fc
                             hit = 1

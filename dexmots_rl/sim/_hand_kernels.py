@@ -91,11 +91,16 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         # law's damping is implicit against the body's mobility (zero: a fixed base)
         body_inv_mass: wp.array2d(dtype=dtype)
         body_inv_inertia: wp.array2d(dtype=mat33)
+        body_mass: wp.array2d(dtype=dtype)  # [V, B] kg: the masses the two above are of
+        # the packed parameters' columns (ArticulatedScene.param_names): body b >= first_moving's mass is column
+        # mass_col + b - first_moving, the fingers' friction coefficient column mu_col
+        first_moving: int
+        mass_col: int
+        mu_col: int
         gravity: vec3
         ke: dtype  # N/m: contact stiffness
         kd: dtype  # s/m: Hunt-Crossley damping
         beta: dtype  # 1/m: softplus sharpness
-        mu: dtype  # friction coefficient
         v_slip: dtype  # m/s
 
     funcs = build_funcs(dtype)

@@ -223,8 +223,13 @@ class HandSimulator:
         """Per-world physical parameters from the MJCF, by name (:attr:`param_names`): a TensorDict ``[N]`` of
         ``[N, 1]`` tensors, e.g. ``"joint_damping"``."""
         values = {name: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
-                  for name, v in self.scene.default_param_values().items()}
+                  for name, v in self.default_param_values().items()}
         return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
+
+    def default_param_values(self) -> dict[str, float]:
+        """Every parameter's nominal value (:attr:`param_names`): the scene's, and a contact law's coefficient
+        from this simulator's law."""
+        return self.scene.default_param_values()
 
     def pack_params(self, params) -> torch.Tensor:
         """The named parameters (a TensorDict or dict of ``[N, 1]`` tensors) as the ``[N, P]`` array the

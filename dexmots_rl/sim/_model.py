@@ -29,6 +29,7 @@ from ._mjcf_shapes import (
     _palm_boxes,
     _quat_to_mat,
 )
+from ._constants import HAND_FRICTION
 from ._object_model import HINGE, SLIDE  # one joint-kind enumeration: the hand's and the object's joints
 
 __all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "load_scene"]
@@ -59,7 +60,7 @@ class ContactParams:
     stiffness: float = 2.0e4
     damping: float = 1.0
     sharpness: float = 200.0
-    friction: float = 1.0
+    friction: float = HAND_FRICTION
     slip_velocity: float = 0.2
     surface_smoothing: float = 0.01
     points_per_capsule: int = 4

@@ -41,6 +41,7 @@ class ObjectKernels:
     frames: object  # wp.Kernel: every body's frame and velocity
     table_contact: object  # wp.Kernel: the table's push on each body (sim/_surface_kernels.py)
     table: bool  # the scene has a table (else table_contact is never launched)
+    table_mu_col: int  # the packed parameters' column of the table's friction coefficient (ObjectTree.param_names)
     sum_contacts: object  # wp.Kernel: each body's total contact and the hand's running means
     vec3: type
     mat33: type
@@ -58,6 +59,11 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
     TABLE = bool(table) and FREE
     assert NP >= 1 or FREE, "a fixed object needs a moving part"
     NPV = max(NP, 1)  # warp types need a positive size; with NP == 0 the joint block is compiled out
+    # the packed parameters' columns (ObjectTree.param_names): 4 per joint, then each moving body's mass (every
+    # body from FIRST_MOVING on), then the table's friction
+    MASS_COL = 4 * NP
+    FIRST_MOVING = 0 if FREE else 1
+    TABLE_MU_COL = MASS_COL + B - FIRST_MOVING
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     quat = wp.types.quaternion(dtype)
@@ -91,7 +97,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
         ke: dtype  # N/m per sample: the table's penalty stiffness
         beta: dtype  # 1/m: softplus sharpness of the penalty
         kd: dtype  # s/m: Hunt-Crossley damping of the normal force
-        mu: dtype  # Coulomb friction coefficient against the table
+        mu: dtype  # Coulomb friction coefficient against the table (unread: the parameter "table/friction" is)
         v_slip: dtype  # m/s: slip velocity smoothing the friction
 
     funcs = build_funcs(dtype)
@@ -112,6 +118,14 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             v0 = vec3(qd[w, 0], qd[w, 1], qd[w, 2])
             w0 = vec3(qd[w, 3], qd[w, 4], qd[w, 5])
         return x0, R0, v0, w0
+
+    @wp.func
+    def mass_scale(mass: dtype, nominal: dtype):
+        """A body's mass parameter over its model mass (1 for a massless body, which stays massless)."""
+        scale = dtype(1.0)
+        if nominal > dtype(0.0):
+            scale = mass / nominal
+        return scale
 
     @wp.func
     def unit_p(k: int):
@@ -137,7 +151,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
         variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
         q: wp.array2d(dtype=dtype),  # [N, nq] in
         qd: wp.array2d(dtype=dtype),  # [N, nv] in
-        params: wp.array2d(dtype=dtype),  # [N, 4 * NP] per joint: damping, friction, stiffness, rest
+        params: wp.array2d(dtype=dtype),  # [N, P] packed as ObjectTree.param_names (the columns above)
         ext: wp.array2d(dtype=dtype),  # [N, 6 * B] per body: force (N) and torque about its com (N m), world
         contact_f: wp.array2d(dtype=vec3),  # [N, B] contact force on each body (N), world (table_contact)
         contact_t: wp.array2d(dtype=vec3),  # [N, B] its torque about the body's com (N m)
@@ -240,6 +254,10 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             # the body's spatial inertia at its com, plus the contacts' implicit viscous part (table_contact)
             mb = m.mass[v, b]
             Iw = R * m.inertia[v, b] * wp.transpose(R)
+            if b >= FIRST_MOVING:  # the body's mass parameter; its inertia scales with it (same shape)
+                scale = mass_scale(params[w, MASS_COL + b - FIRST_MOVING], mb)
+                mb = mb * scale
+                Iw = Iw * scale
             Kvv = mb * wp.identity(n=3, dtype=dtype) + contact_Kvv[w, b]
             Kvw = contact_Kvw[w, b]
             Kww = Iw + contact_Kww[w, b]
@@ -379,6 +397,6 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
         sim/_surface_kernels.py)."""
         return m.table_z[v] + rad - ps[2], vec3(dtype(0.0), dtype(0.0), dtype(1.0))
 
-    return ObjectKernels(Model=Model, substep=substep, frames=frames, table=TABLE,
+    return ObjectKernels(Model=Model, substep=substep, frames=frames, table=TABLE, table_mu_col=TABLE_MU_COL,
                          table_contact=build_surface_contact(dtype, Model, 1, table_top),
                          sum_contacts=build_sum_contacts(dtype, B, Model), vec3=vec3, mat33=mat33, dtype=dtype)

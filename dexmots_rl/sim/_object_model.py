@@ -11,6 +11,9 @@ joints; ``S`` surface samples per body):
 * ``joint_kind`` [P] HINGE or SLIDE, ``joint_axis`` [P, 3] and ``joint_anchor`` [P, 3] in the part frame;
   ``joint_range`` [P, 2] (rad or m), and the named per-world parameters of every joint (see
   :func:`joint_param_names`): damping, friction, stiffness, rest;
+* the named per-world parameters after the joints' (:attr:`ObjectTree.param_names`): ``"<body>/mass"`` (kg) of
+  every moving body (a free base and the parts: its inertia scales with it) and, for a free base on a table,
+  ``"table/friction"`` (the table's Coulomb coefficient);
 * ``mass`` [B] (kg), ``com`` [B, 3] (m, body frame), ``inertia`` [B, 3, 3] (kg m^2 about the com, body frame),
   ``armature`` [P] (kg m^2 or kg);
 * ``ancestor`` [B, P] 1 where part joint p moves body b (p's part is b or one of b's ancestors);
@@ -26,16 +29,19 @@ import dataclasses
 
 import numpy as np
 
+from ._constants import TABLE_FRICTION
 from ._mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 
 __all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
-           "SLIDE"]
+           "SLIDE", "TABLE_FRICTION_PARAM"]
 
 MAX_PARTS = 4
 MAX_SAMPLES = 12  # table-contact samples per body (each is unrolled in the kernel and its adjoint)
 HINGE, SLIDE = 0, 1
 # per-joint physical parameters, by name: ("sim", "params", "<joint>/<name>") in the env's TensorDict
 JOINT_PARAMS = ("damping", "friction", "stiffness", "rest")
+TABLE_FRICTION_PARAM = "table/friction"  # the table's Coulomb coefficient (a free base on a table)
+
 
 
 def joint_param_names(joint_names) -> tuple[str, ...]:
@@ -89,15 +95,40 @@ class ObjectTree:
         return 6 * self.free + self.num_parts
 
     @property
-    def param_names(self) -> tuple[str, ...]:
-        return joint_param_names(self.joint_names)
+    def moving_bodies(self) -> range:
+        """The bodies that move (a free base and the parts; a fixed base does not): each has a mass parameter,
+        in this order."""
+        return range(0 if self.free else 1, self.num_bodies)
 
-    def default_param_values(self) -> dict[str, float]:
+    @property
+    def table_contact(self) -> bool:
+        """Whether the table pushes the object (a free base on a table): it has the ``table/friction`` parameter."""
+        return bool(self.free) and self.table_height is not None
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """The per-world parameters, in the packed array's order: every joint's (:func:`joint_param_names`), every
+        moving body's ``"<body>/mass"``, then ``"table/friction"`` with a table contact."""
+        masses = tuple(f"{self.body_names[b]}/mass" for b in self.moving_bodies)
+        return joint_param_names(self.joint_names) + masses + ((TABLE_FRICTION_PARAM,) if self.table_contact else ())
+
+    def randomized(self, name: str) -> bool:
+        """Whether an env draws parameter ``name`` around its nominal value each episode: a joint's damping,
+        friction or stiffness (not its rest, nor a mass or a contact's friction, which stay the scene's)."""
+        joint, _, kind = name.rpartition("/")
+        return joint in self.joint_names and kind in JOINT_PARAMS and kind != "rest"
+
+    def default_param_values(self, table_friction: float = TABLE_FRICTION) -> dict[str, float]:
+        """Every parameter's value in this tree (``table_friction``: the table's coefficient)."""
         values = {}
         for i, j in enumerate(self.joint_names):
             for p, arr in zip(JOINT_PARAMS, (self.joint_damping, self.joint_friction, self.joint_stiffness,
                                              self.joint_rest)):
                 values[f"{j}/{p}"] = float(arr[i])
+        for b in self.moving_bodies:
+            values[f"{self.body_names[b]}/mass"] = float(self.mass[b])
+        if self.table_contact:
+            values[TABLE_FRICTION_PARAM] = float(table_friction)
         return values
 
 

@@ -28,7 +28,7 @@ import warp as wp
 from tensordict import TensorDict
 
 from ._mjcf_shapes import AssetError
-from ._constants import LIMIT_WIDTH
+from ._constants import LIMIT_WIDTH, TABLE_FRICTION
 from ._object_kernels import build_object_kernels
 from ._object_model import MAX_SAMPLES, ObjectTree, object_tree
 from ._hand_sim import check_device
@@ -48,7 +48,7 @@ class TableContact:
     stiffness: float = 2.0e4  # N/m per sample
     sharpness: float = 1.0e4  # 1/m
     damping: float = 10.0  # s/m
-    friction: float = 0.8
+    friction: float = TABLE_FRICTION
     slip_velocity: float = 0.002  # m/s
 
 
@@ -143,8 +143,8 @@ class ObjectSimulator:
         m.gravity = k.vec3(*gravity)
         m.table_z = arr([v.table_height or 0.0 for v in self.variants], wdt)
         c = self.table
-        m.ke, m.beta, m.kd, m.mu, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.friction,
-                                                               c.slip_velocity))
+        # the table's friction is the per-world parameter "table/friction" (default_params: this law's)
+        m.ke, m.beta, m.kd, m.v_slip = (wdt(v) for v in (c.stiffness, c.sharpness, c.damping, c.slip_velocity))
         return m
 
     # ---------------------------------------------------------------------------------------- state
@@ -157,7 +157,7 @@ class ObjectSimulator:
 
     def default_params(self) -> TensorDict:
         values = {n: torch.full((self.num_worlds, 1), v, dtype=self.dtype, device=self.torch_device)
-                  for n, v in self.tree.default_param_values().items()}
+                  for n, v in self.tree.default_param_values(self.table.friction).items()}
         return TensorDict(values, batch_size=[self.num_worlds], device=self.torch_device)
 
     def pack_params(self, params) -> torch.Tensor:
@@ -204,7 +204,8 @@ class ObjectSimulator:
             contact = [new(k.vec3, nb), new(k.vec3, nb), new(k.mat33, nb), new(k.mat33, nb), new(k.mat33, nb)]
             if k.table:
                 wp.launch(k.table_contact, dim=(n, nb), device=self.device,  # adds into the (zero) contact
-                          inputs=[self.model, variant, *frames, wdt(self.sub_dt), MAX_SAMPLES], outputs=contact)
+                          inputs=[self.model, variant, wpar, k.table_mu_col, *frames, wdt(self.sub_dt), MAX_SAMPLES],
+                          outputs=contact)
             q_out, qd_out = new(wdt, self.nq), new(wdt, self.nv)
             wp.launch(k.substep, dim=n, device=self.device,
                       inputs=[self.model, variant, q_in, qd_in, wpar, wext, *contact, wdt(self.sub_dt),

@@ -21,7 +21,8 @@ __all__ = ["build_surface_contact"]
 
 def build_surface_contact(dtype, Model, surfaces: int, surface):
     """The kernel of ``surfaces`` fixed surfaces against the bodies' samples. ``Model`` (a wp.struct) holds
-    ``sample_pos``/``sample_radius`` [V, B, S] and the law's ``ke``, ``beta``, ``kd``, ``mu``, ``v_slip``;
+    ``sample_pos``/``sample_radius`` [V, B, S] and the law's ``ke``, ``beta``, ``kd``, ``mu``, ``v_slip`` (the
+    friction coefficient is the launch's ``params[w, mu_col]`` instead when ``mu_col`` >= 0: the table's);
     ``surface(m, v, k, ps, rad)`` (a wp.func) returns the penetration (m) of the sample sphere at ``ps`` (world) of
     radius ``rad`` into surface k (of object variant v) and the surface's outward unit normal there. The kernel adds
     (atomically) the push on each body to the contact arrays it is given, so the table's and the palm's kernels
@@ -35,6 +36,8 @@ def build_surface_contact(dtype, Model, surfaces: int, surface):
     def push(
         m: Model,
         variant: wp.array(dtype=wp.int32),  # [N] each world's object variant
+        params: wp.array2d(dtype=dtype),  # [N, P] the packed parameters
+        mu_col: int,  # the column of the friction coefficient in params; -1: the model's mu
         body_x: wp.array2d(dtype=vec3),  # [N, B] object frames (object_kernels.frames)
         body_R: wp.array2d(dtype=mat33),
         body_c: wp.array2d(dtype=vec3),
@@ -55,6 +58,9 @@ def build_surface_contact(dtype, Model, surfaces: int, surface):
         c = body_c[w, b]
         vc = body_v[w, b]
         om = body_w[w, b]
+        mu = m.mu
+        if mu_col >= 0:
+            mu = params[w, mu_col]
         # each sample adds its own contact (atomics, in sample order): nothing is carried from one sample to the
         # next, so the loop's adjoint is exact and visits each sample once (unrolled, the adjoint zeroed every
         # sample's adjoint variables first: most of its time)
@@ -66,7 +72,7 @@ def build_surface_contact(dtype, Model, surfaces: int, surface):
                     pen, n = surface(m, v, k, ps, rad)
                     if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                         r = ps - n * rad - c
-                        f, Pc = surface_contact(pen, n, vc + wp.cross(om, r), m.ke, m.beta, m.kd, m.mu, m.v_slip, dt)
+                        f, Pc = surface_contact(pen, n, vc + wp.cross(om, r), m.ke, m.beta, m.kd, mu, m.v_slip, dt)
                         # P at the contact point moved to the com (the point's velocity is V - [r]x w)
                         Sr = wp.skew(r)
                         wp.atomic_add(contact_f, w, b, f)

@@ -167,7 +167,7 @@ class ShootingProblem:
         if unknown or not names:
             raise ValueError(f"unknown parameter {unknown[0] if unknown else '(none given)'!r}; this scene's "
                              f"parameters are: {', '.join(self.known) or 'none'}")
-        nominal = sim.scene.default_param_values()
+        nominal = sim.default_param_values()
         self.space = ParamSpace.build(names, {**nominal, **(initial or {})}, bounds or {})
         self.nominal = nominal
         self._split(segment_steps, validation, seed, max_segments)
@@ -212,7 +212,7 @@ class ShootingProblem:
         for name in self.env.sim.scene.param_names:
             recorded = t.params.get(name)
             fixed[name] = tensor(recorded[f, w]) if recorded is not None else torch.full(
-                (len(starts), 1), float(self.env.sim.scene.default_param_values()[name]), dtype=self.dtype)
+                (len(starts), 1), float(self.env.sim.default_param_values()[name]), dtype=self.dtype)
         self.fixed = fixed
 
     @property

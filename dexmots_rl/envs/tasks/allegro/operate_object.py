@@ -252,8 +252,8 @@ class OperateObjectEnv(DexEnv):
 
     def _param_ranges(self) -> dict:
         s = self.config.param_scale
-        return {name: (v * (1 - s), v * (1 + s)) for name, v in self.sim.scene.default_param_values().items()
-                if not name.endswith("/rest") and name != "variant"}
+        return {name: (v * (1 - s), v * (1 + s)) for name, v in self.sim.default_param_values().items()
+                if self.sim.tree.randomized(name)}
 
     def sample_params(self, n: int) -> dict[str, torch.Tensor]:
         """With K > 1 variants: each world's variant (uniform), its joint parameters within ``param_scale`` of
@@ -264,7 +264,10 @@ class OperateObjectEnv(DexEnv):
         s, out = self.config.param_scale, {"variant": variant.to(self.dtype).unsqueeze(-1)}
         for name, values in self._variant_values["params"].items():
             nominal = values[variant]
-            out[name] = nominal if name.endswith("/rest") else nominal * (1 - s + 2 * s * self._rand(n, 1))
+            out[name] = (nominal * (1 - s + 2 * s * self._rand(n, 1)) if name in self.param_ranges else nominal)
+        for name, value in self.sim.default_param_values().items():  # the hand's: every variant's
+            if name not in out:
+                out[name] = torch.full((n, 1), value, dtype=self.dtype, device=self.device)
         return out
 
     # ----------------------------------------------------------------------------------- episodes
