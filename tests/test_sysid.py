@@ -22,6 +22,17 @@ def knob_data():
     return synthetic_trajectories("screw_claw", TRUTH, worlds=4, steps=48, seed=0, angle_noise=1e-4)
 
 
+def _central_differences(loss, x: torch.Tensor, eps: float = 1e-6) -> np.ndarray:
+    """[len(x)] central differences of the scalar ``loss`` at ``x``."""
+    fd = np.zeros(len(x))
+    for i in range(len(x)):
+        plus, minus = x.clone(), x.clone()
+        plus[i] += eps
+        minus[i] -= eps
+        fd[i] = (loss(plus) - loss(minus)) / (2 * eps)
+    return fd
+
+
 def test_residual_jacobian_matches_central_differences(knob_data):
     """d(residuals)/d(log damping, log friction) through the knob's contact, float64: the exact Jacobian (one copy
     of each segment per residual, one reverse pass) against central differences."""
@@ -46,12 +57,7 @@ def test_start_state_gradients_match_central_differences(knob_data):
     x = torch.as_tensor(np.concatenate([problem.space.to_z([0.4, 0.7]),
                                         0.3 * np.random.default_rng(0).standard_normal(problem.num_start_variables)]))
     _, grad = problem.loss_and_grad(x)
-    eps, fd = 1e-6, np.zeros(len(x))
-    for i in range(len(x)):
-        plus, minus = x.clone(), x.clone()
-        plus[i] += eps
-        minus[i] -= eps
-        fd[i] = (problem.loss_and_grad(plus)[0] - problem.loss_and_grad(minus)[0]).item() / (2 * eps)
+    fd = _central_differences(lambda v: problem.loss_and_grad(v)[0].item(), x)
     np.testing.assert_allclose(grad.numpy(), fd, rtol=1e-4, atol=1e-5 * np.abs(fd).max())
     with pytest.raises(ValueError, match="^free_starts: only method=lbfgs"):
         identify(problem, "gn", iterations=1)
@@ -103,12 +109,7 @@ def test_replay_loss_gradient_wrt_masses_and_contact_friction_matches_central_di
     assert problem.space.log.all()  # positive: identified through their logarithm
     x = torch.as_tensor(problem.space.to_z(problem.space.initial * np.array([1.3, 0.8, 0.7, 1.2])))
     _, grad = problem.loss_and_grad(x)
-    eps, fd = 1e-6, np.zeros(len(x))
-    for i in range(len(x)):
-        plus, minus = x.clone(), x.clone()
-        plus[i] += eps
-        minus[i] -= eps
-        fd[i] = (problem.loss(plus.numpy()) - problem.loss(minus.numpy())) / (2 * eps)
+    fd = _central_differences(lambda v: problem.loss(v.numpy()), x)
     assert (np.abs(fd) > 1e-6 * np.abs(fd).max()).all() and np.abs(fd).max() > 1e-3, fd
     np.testing.assert_allclose(grad.numpy(), fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
