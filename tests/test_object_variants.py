@@ -40,10 +40,11 @@ def _start(sim, variants):
     q, qd = sim.initial_state()
     q[:, sim.nu:] = torch.as_tensor(sim.scene.variant_q0[variants], dtype=sim.dtype)
     params = sim.default_params()
-    for name, value in params.items():  # each world's own object's joint parameters
-        if name != "variant":
-            for w, v in enumerate(variants):
-                value[w] = sim.scene.variant_trees[v].default_param_values()[name]
+    for name, value in params.items():  # each world's own object's parameters (joints, masses)
+        for w, v in enumerate(variants):
+            own = sim.scene.variant_trees[v].default_param_values()
+            if name in own:
+                value[w] = own[name]
     if sim.scene.num_variants > 1:
         params["variant"] = torch.as_tensor(variants, dtype=sim.dtype).reshape(-1, 1)
     return q, qd, params
