@@ -58,3 +58,19 @@ def test_compile_rejects_an_unknown_task():
         run_compile(["screw_claw", "no_such_task"], "cuda", 90)
     with pytest.raises(SystemExit):
         bench.build_parser().parse_args(["compile", "--task", "no_such_task"])
+
+
+def test_compile_all_builds_every_registered_task_into_one_result(monkeypatch):
+    from dexmots_rl.apps import bench_compile
+    from dexmots_rl.envs import list_tasks
+
+    seen = []
+
+    def one_task(task, device, arch, dtypes, render=True):  # what compile_task returns, without compiling
+        seen.append((task, device, arch, tuple(dtypes)))
+        return {"task": task, "device": device, "arch": arch, "kernels": [], "seconds": 0.0, "ok": True}
+
+    monkeypatch.setattr(bench_compile, "compile_task", one_task)
+    result = bench.run(["compile", "--all", "--device", "cuda", "--arch", "90", "--quiet"])
+    assert seen == [(task, "cuda", 90, ("float32",)) for task in list_tasks()]
+    assert [t["task"] for t in result["tasks"]] == list_tasks() and result["ok"] and result["arch"] == 90
