@@ -30,6 +30,7 @@ def build_contact(t) -> types.SimpleNamespace:
     funcs = build_funcs(dtype)
     trilinear, softplus = funcs.trilinear, funcs.softplus
     normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
+    tangent_mobility = funcs.tangent_mobility
 
     @wp.func
     def unit_j(j: int):
@@ -233,6 +234,11 @@ def build_contact(t) -> types.SimpleNamespace:
         return body_mobility(dtype(1.0) / m.obj_mass, m.obj_inv_inertia, Ro, r, n)
 
     @wp.func
+    def object_slip_mobility(m: Model, Ro: mat33, r: vec3, n: vec3):
+        """The free object's inverse effective mass (1/kg) over the tangent plane of n at r from its com (world)."""
+        return tangent_mobility(dtype(1.0) / m.obj_mass, m.obj_inv_inertia, Ro, r, n)
+
+    @wp.func
     def contact_force(m: Model, p: vec3, rad: dtype, sd: vec4, Ro: mat33, xo: vec3, vo: vec3, wo: vec3, base: int,
                       A: matJ3, O: matJ3, qdf: vecJ, dt: dtype, saved: Saved, row: int, slot: int):
         """The contact law of one finger sphere (centre p, radius rad) whose signed distance and normal
@@ -262,6 +268,9 @@ def build_contact(t) -> types.SimpleNamespace:
             fn = normal_force(spring, vn, m.kd, dt, mobility)
             vt = v_rel - vn * n
             den = slip_norm(vt, m.v_slip)
+            if wp.static(not HINGE_OBJECT):
+                # the friction's drag implicit against the object's tangential mobility there (slip_norm says why)
+                den = den + dt * m.mu * fn * object_slip_mobility(m, Ro, cp - xo, n)
             ft = -m.mu * fn / den * vt
             fc = fn * n + ft
             gen = Jv * fc
@@ -329,10 +338,30 @@ def build_contact(t) -> types.SimpleNamespace:
             # gen = Jv fc
             a_fc = a_fc + wp.transpose(Jv) * a_gen
             a_Jv = wp.outer(a_gen, fc)
-            # fc = fn n + ft, ft = c(vt) fn vt with c = -mu / sqrt(|vt|^2 + v_slip^2)
+            # fc = fn n + ft, ft = c fn vt with c = -mu / den
             a_fn = a_fn + wp.dot(a_fc, n) + c * wp.dot(vt, a_fc)
             a_n = fn * a_fc
-            a_vt = c * fn * a_fc + (m.mu * fn * wp.dot(vt, a_fc) / (den * den * den)) * vt
+            # den = slip_norm(vt) + dt mu fn w_t (a free object; w_t its tangential mobility)
+            a_den = m.mu * fn * wp.dot(vt, a_fc) / (den * den)
+            a_vt = c * fn * a_fc + (a_den / slip_norm(vt, m.v_slip)) * vt
+            if wp.static(not HINGE_OBJECT):
+                if dt > dtype(0.0):
+                    # w_t = (3/m + |rb|^2 tr I^-1 - rb . I^-1 rb - w) / 2, rb = Ro^T r, w = 1/m + u . I^-1 u,
+                    # u = Ro^T (r x n): its adjoint into Ro, r (cp, xo) and n
+                    a_fn = a_fn + a_den * dt * m.mu * object_slip_mobility(m, Ro, r, n)
+                    a_wt = a_den * dt * m.mu * fn
+                    I_inv = m.obj_inv_inertia
+                    rb = wp.transpose(Ro) * r
+                    rn = wp.cross(r, n)
+                    ub = wp.transpose(Ro) * rn
+                    g_rn = Ro * (I_inv * ub)  # d (u . I^-1 u) / d (r x n), halved
+                    inv_trace = I_inv[0, 0] + I_inv[1, 1] + I_inv[2, 2]
+                    g_r = Ro * (inv_trace * rb - I_inv * rb)  # d (|rb|^2 tr I^-1 - rb . I^-1 rb) / d r, halved
+                    a_r_t = a_wt * (g_r - wp.cross(n, g_rn))
+                    a_n = a_n - a_wt * wp.cross(g_rn, r)
+                    wp.adjoint[Ro] += a_wt * (wp.outer(r, inv_trace * rb - I_inv * rb) - wp.outer(rn, I_inv * ub))
+                    a_cp = a_cp + a_r_t
+                    wp.adjoint[xo] += -a_r_t
             # vt = v_rel - vn n
             a_vrel = a_vt
             a_vn = -wp.dot(a_vt, n)

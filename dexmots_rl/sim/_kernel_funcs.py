@@ -1,8 +1,9 @@
 """Small warp functions the articulated-object kernels share, generic in the float type.
 
 :func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
-``normal_force`` / ``slip_norm`` / ``body_mobility`` (the one contact law's normal force with its implicit
-damping, its friction's smoothing, and the mobility the damping is integrated against),
+``normal_force`` / ``slip_norm`` / ``body_mobility`` / ``tangent_mobility`` (the one contact law's normal force with
+its implicit damping, its friction's smoothing, and the mobilities the damping and the friction are integrated
+against),
 ``axis_angle`` (a rotation matrix, with a hand-written adjoint), ``limit_ramp`` / ``limit_slope`` (a range stop's
 C1 penalty and its slope), ``joint_friction`` (smoothed Coulomb friction), ``write_pose`` (a body's pose as 7 floats),
 ``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
@@ -31,6 +32,7 @@ class KernelFuncs:
     normal_force: object
     slip_norm: object
     body_mobility: object
+    tangent_mobility: object
     surface_contact: object
     axis_angle: object
     limit_ramp: object
@@ -71,7 +73,12 @@ def build_funcs(float_type) -> KernelFuncs:
 
     @wp.func
     def slip_norm(vt: vec3, v_slip: dtype):
-        """sqrt(|vt|^2 + v_slip^2): the contact law's friction is -mu fn vt / slip_norm (Coulomb, smoothed)."""
+        """sqrt(|vt|^2 + v_slip^2): the contact law's friction is -mu fn vt / slip_norm (Coulomb, smoothed).
+
+        Near sticking that is a viscous drag of mu fn / v_slip (N s/m). Against a body of tangential ``mobility``
+        w the law adds dt mu fn w to this norm (the drag c becomes c / (1 + dt c w): implicit, exactly so for
+        one contact), as :func:`normal_force` does for the normal damping: explicit, a light body squeezed hard
+        (a cube's corner under a fingertip, dt c w ~ 6) has its slip reversed and grown every substep."""
         return wp.sqrt(wp.dot(vt, vt) + v_slip * v_slip)
 
     @wp.func
@@ -82,6 +89,16 @@ def build_funcs(float_type) -> KernelFuncs:
         above (the implicit damping is then on the safe side)."""
         u = wp.transpose(R) * wp.cross(r, n)
         return inv_mass + wp.dot(u, inv_inertia * u)
+
+    @wp.func
+    def tangent_mobility(inv_mass: dtype, inv_inertia: mat33, R: mat33, r: vec3, n: vec3):
+        """The mean of a free rigid body's inverse effective mass (1/kg) over the plane normal to the unit n, at
+        r from its com (world; ``inv_inertia`` in the body frame, R body -> world): (trace - along n) / 2 of the
+        point's mobility matrix 1/m I + [r]x^T I^-1 [r]x, what the friction's drag is integrated against."""
+        rb = wp.transpose(R) * r
+        inv_trace = inv_inertia[0, 0] + inv_inertia[1, 1] + inv_inertia[2, 2]
+        trace = dtype(3.0) * inv_mass + wp.dot(rb, rb) * inv_trace - wp.dot(rb, inv_inertia * rb)
+        return dtype(0.5) * (trace - body_mobility(inv_mass, inv_inertia, R, r, n))
 
     @wp.func
     def surface_contact(pen: dtype, n: vec3, vp: vec3, ke: dtype, beta: dtype, kd: dtype, mu: dtype, v_slip: dtype,
@@ -245,6 +262,7 @@ def build_funcs(float_type) -> KernelFuncs:
         return vec4(d, n[0], n[1], n[2])
 
     return KernelFuncs(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm, body_mobility=body_mobility,
-                       surface_contact=surface_contact, axis_angle=axis_angle, limit_ramp=limit_ramp,
-                       limit_slope=limit_slope, joint_friction=joint_friction, write_pose=write_pose,
-                       box_distance=box_distance, trilinear=trilinear, grid_distance=grid_distance)
+                       tangent_mobility=tangent_mobility, surface_contact=surface_contact, axis_angle=axis_angle,
+                       limit_ramp=limit_ramp, limit_slope=limit_slope, joint_friction=joint_friction,
+                       write_pose=write_pose, box_distance=box_distance, trilinear=trilinear,
+                       grid_distance=grid_distance)

@@ -48,6 +48,7 @@ def build_palm(t) -> PalmFuncs:
     smooth_box, box_face_max = t.smooth_box, t.box_face_max
     funcs = build_funcs(dtype)
     box_distance, normal_force, slip_norm = funcs.box_distance, funcs.normal_force, funcs.slip_norm
+    body_mobility, tangent_mobility = funcs.body_mobility, funcs.tangent_mobility
 
     @wp.func
     def box_sdf(m: Model, b: int, p: vec3):
@@ -86,15 +87,11 @@ def build_palm(t) -> PalmFuncs:
             elastic = spring * n
             damping = (fn - spring) * n
             friction = -drag * vt
-            # mobility along n, and its mean over the tangent plane: (trace - normal) / 2 of the point's
-            # mobility matrix 1/m I + [r]x^T I^-1 [r]x
-            rn = wp.cross(r, n)
+            # the object's mobility along n, and its mean over the tangent plane (inv_inertia is world-frame)
             inv_mass = dtype(1.0) / m.obj_mass
-            along_n = inv_mass + wp.dot(rn, inv_inertia * rn)
-            inv_trace = inv_inertia[0, 0] + inv_inertia[1, 1] + inv_inertia[2, 2]
-            trace = dtype(3.0) * inv_mass + wp.dot(r, r) * inv_trace - wp.dot(r, inv_inertia * r)
-            rate_n = m.kd * spring * along_n
-            rate_t = drag * dtype(0.5) * (trace - along_n)
+            world = wp.identity(n=3, dtype=dtype)
+            rate_n = m.kd * spring * body_mobility(inv_mass, inv_inertia, world, r, n)
+            rate_t = drag * tangent_mobility(inv_mass, inv_inertia, world, r, n)
         return elastic, damping, friction, cp, rate_n, rate_t
 
     @wp.func
