@@ -47,6 +47,7 @@ import warp as wp
 
 from ._model import HINGE, OBJECT_HINGE, SceneModel
 from ._render_kernels import (
+    Backdrop,
     LABEL_FLOOR,
     LABEL_HAND,
     LABEL_OBJECT,
@@ -235,12 +236,10 @@ class RayCaster:
         self._view = camera_view(camera, self.height, self.width, light)
         self._no_labels = wp.zeros((1, 1), dtype=wp.uint8, device=self.device)
         npix = self.height * self.width
-        self._background = (wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=float, device=self.device),
-                            wp.empty(npix, dtype=wp.vec3, device=self.device),
-                            wp.empty(npix, dtype=wp.uint8, device=self.device))
-        wp.launch(background, dim=npix, inputs=[self._scene, self._view], outputs=list(self._background),
-                  device=self.device)
+        self._backdrop = bd = Backdrop()
+        bd.rays, bd.depth = wp.empty(npix, dtype=wp.vec3, device=self.device), wp.empty(npix, device=self.device)
+        bd.color, bd.label = wp.empty(npix, dtype=wp.vec3, device=self.device), wp.empty(npix, wp.uint8, self.device)
+        wp.launch(background, dim=npix, inputs=[self._scene, self._view, bd], device=self.device)
 
     def _place(self, pose, n: int, stream) -> list:
         """Launch what places the drawn bodies of ``n`` worlds from ``pose``; the pixel kernel's inputs between the
@@ -263,7 +262,7 @@ class RayCaster:
         placed = self._place(pose, n, stream)
 
         def launch(lo, hi):
-            wp.launch(self.pixel_kernel, dim=hi - lo, inputs=[self._scene, self._view, *placed, *self._background, lo],
+            wp.launch(self.pixel_kernel, dim=hi - lo, inputs=[self._scene, self._view, *placed, self._backdrop, lo],
                       outputs=[w_image, w_lab, int(labels)], device=self.device, stream=stream)
 
         total = n * h * w

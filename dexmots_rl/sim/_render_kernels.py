@@ -11,8 +11,8 @@ import warp as wp
 
 from ._constants import GEOM_CONVEX, GEOM_CYLINDER, GEOM_SPHERE
 
-__all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "place_segments",
-           "background_kernel", "render_kernel", "shade", "pixel_ray", "plane_distance", "world_pixel", "sphere_span",
+__all__ = ["LABEL_SKY", "LABEL_FLOOR", "LABEL_HAND", "LABEL_OBJECT", "RenderScene", "View", "Backdrop",
+           "place_segments", "background_kernel", "render_kernel", "shade", "pixel_ray", "plane_distance", "world_pixel", "sphere_span",
            "checker", "sky_color", "write_backdrop", "write_pixel"]
 
 wp.set_module_options({"enable_backward": False})
@@ -54,6 +54,17 @@ class View:
     light: wp.vec3
     height: int
     width: int
+
+
+@wp.struct
+class Backdrop:
+    """What a camera sees behind the scene, per pixel, computed once (the background kernels): the pixel's ray,
+    the distance to the floor or table (1e30: the sky), its colour and label."""
+
+    rays: wp.array(dtype=wp.vec3)
+    depth: wp.array(dtype=float)
+    color: wp.array(dtype=wp.vec3)
+    label: wp.array(dtype=wp.uint8)
 
 
 @wp.func
@@ -311,18 +322,18 @@ def sky_color(rd: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def write_backdrop(depth: wp.array(dtype=float), color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8),
-                   p: int, rd: wp.vec3, light: wp.vec3, t: float, hit: bool, albedo: wp.vec3, hit_label: int):
-    """Pixel ``p``'s background: the horizontal surface at distance ``t`` where ``hit`` (lit from above), else the
+def write_backdrop(bd: Backdrop, p: int, rd: wp.vec3, light: wp.vec3, t: float, hit: bool, albedo: wp.vec3,
+                   hit_label: int):
+    """Pixel ``p``'s backdrop: the horizontal surface at distance ``t`` where ``hit`` (lit from above), else the
     sky."""
     if hit:
-        depth[p] = t
-        color[p] = shade(albedo, wp.vec3(0.0, 0.0, 1.0), light, 0.0)
-        label[p] = wp.uint8(hit_label)
+        bd.depth[p] = t
+        bd.color[p] = shade(albedo, wp.vec3(0.0, 0.0, 1.0), light, 0.0)
+        bd.label[p] = wp.uint8(hit_label)
     else:
-        depth[p] = 1.0e30
-        color[p] = sky_color(rd)
-        label[p] = wp.uint8(LABEL_SKY)
+        bd.depth[p] = 1.0e30
+        bd.color[p] = sky_color(rd)
+        bd.label[p] = wp.uint8(LABEL_SKY)
 
 
 @wp.func
@@ -339,27 +350,25 @@ def write_pixel(image: wp.array3d(dtype=wp.uint8), labels: wp.array2d(dtype=wp.u
 
 
 @wp.kernel
-def background_kernel(sc: RenderScene, view: View, rays: wp.array(dtype=wp.vec3), depth: wp.array(dtype=float),
-                      color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
+def background_kernel(sc: RenderScene, view: View, bd: Backdrop):
     """The static part, once per camera: each pixel's ray, and the floor (or sky) behind the scene."""
     p = wp.tid()
-    rd = pixel_ray(view, rays, p)
+    rd = pixel_ray(view, bd.rays, p)
     t = plane_distance(view.pos, rd, sc.floor_z)
     g = 0.55 + 0.07 * float(checker(view.pos + t * rd, sc.tile))
-    write_backdrop(depth, color, label, p, rd, view.light, t, t > 0.0, wp.vec3(g, g, g), LABEL_FLOOR)
+    write_backdrop(bd, p, rd, view.light, t, t > 0.0, wp.vec3(g, g, g), LABEL_FLOOR)
 
 
 @wp.kernel
 def render_kernel(sc: RenderScene, view: View, pose: wp.array3d(dtype=float), seg_a: wp.array2d(dtype=wp.vec3),
                   seg_b: wp.array2d(dtype=wp.vec3), seg_bound: wp.array2d(dtype=wp.vec4),
-                  rays: wp.array(dtype=wp.vec3), bg_depth: wp.array(dtype=float), bg_color: wp.array(dtype=wp.vec3),
-                  bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
+                  bg: Backdrop, p0: int, image: wp.array3d(dtype=wp.uint8),
                   labels: wp.array2d(dtype=wp.uint8), write_labels: int):
     """One pixel of one world: thread p0 + tid = world * (height * width) + pixel."""
     w, p = world_pixel(view, p0 + wp.tid())
     ro = view.pos
-    rd = rays[p]
-    best = bg_depth[p]
+    rd = bg.rays[p]
+    best = bg.depth[p]
     label = int(0)
     normal = wp.vec3(0.0, 0.0, 1.0)
     albedo = wp.vec3(0.0)
@@ -392,7 +401,7 @@ def render_kernel(sc: RenderScene, view: View, pose: wp.array3d(dtype=float), se
             albedo = OBJECT_COLOR
             if lp[0] > 0.0 and wp.abs(lp[1]) < 0.2 * sc.bound:
                 albedo = MARKER_COLOR
-    color = bg_color[p]
+    color = bg.color[p]
     if label != 0:
         color = shade(albedo, normal, view.light, 0.5)
-    write_pixel(image, labels, w, p, color, write_labels, label, bg_label[p])
+    write_pixel(image, labels, w, p, color, write_labels, label, bg.label[p])

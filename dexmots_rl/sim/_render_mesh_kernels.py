@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._render_kernels import (LABEL_SKY, View, checker, pixel_ray, plane_distance, shade, sphere_span, world_pixel,
-                              write_backdrop, write_pixel)
+from ._render_kernels import (LABEL_SKY, Backdrop, View, checker, pixel_ray, plane_distance, shade, sphere_span,
+                              world_pixel, write_backdrop, write_pixel)
 
 __all__ = ["LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL", "MeshScene", "mesh_background_kernel",
            "place_bodies", "mesh_render_kernel"]
@@ -40,18 +40,17 @@ class MeshScene:
 
 
 @wp.kernel
-def mesh_background_kernel(sc: MeshScene, view: View, rays: wp.array(dtype=wp.vec3), depth: wp.array(dtype=float),
-                           color: wp.array(dtype=wp.vec3), label: wp.array(dtype=wp.uint8)):
+def mesh_background_kernel(sc: MeshScene, view: View, bd: Backdrop):
     """The static part, once per camera: each pixel's ray, and the table (or the sky) behind the scene."""
     p = wp.tid()
-    rd = pixel_ray(view, rays, p)
+    rd = pixel_ray(view, bd.rays, p)
     t = float(-1.0)
     if sc.has_table != 0:
         t = plane_distance(view.pos, rd, sc.table_z)
     q = view.pos + t * rd
     on_table = t > 0.0 and q[0] >= sc.table_lo[0] and q[0] <= sc.table_hi[0] and q[1] >= sc.table_lo[1] \
         and q[1] <= sc.table_hi[1]
-    write_backdrop(depth, color, label, p, rd, view.light, t, on_table,
+    write_backdrop(bd, p, rd, view.light, t, on_table,
                    sc.table_color * (1.0 - 0.08 * float(checker(q, sc.tile))), LABEL_TABLE)
 
 
@@ -72,15 +71,13 @@ def place_bodies(sc: MeshScene, pose: wp.array3d(dtype=float), inv_xform: wp.arr
 
 @wp.kernel
 def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp.transform),
-                       bound: wp.array2d(dtype=wp.vec4), rays: wp.array(dtype=wp.vec3),
-                       bg_depth: wp.array(dtype=float), bg_color: wp.array(dtype=wp.vec3),
-                       bg_label: wp.array(dtype=wp.uint8), p0: int, image: wp.array3d(dtype=wp.uint8),
+                       bound: wp.array2d(dtype=wp.vec4), bg: Backdrop, p0: int, image: wp.array3d(dtype=wp.uint8),
                        labels: wp.array2d(dtype=wp.uint8), write_labels: int):
     """One pixel of one world: thread p0 + tid = world * (height * width) + pixel."""
     w, p = world_pixel(view, p0 + wp.tid())
     ro = view.pos
-    rd = rays[p]
-    best = bg_depth[p]
+    rd = bg.rays[p]
+    best = bg.depth[p]
     hit_body = int(-1)
     normal = wp.vec3(0.0, 0.0, 1.0)
     albedo = wp.vec3(0.0)
@@ -97,11 +94,11 @@ def mesh_render_kernel(sc: MeshScene, view: View, inv_xform: wp.array2d(dtype=wp
                 hit_body = k
                 normal = wp.quat_rotate_inv(wp.transform_get_rotation(inv), q.normal)
                 albedo = sc.face_color[sc.face_start[k] + q.face]
-    color = bg_color[p]
+    color = bg.color[p]
     label = int(0)  # the background's
     if hit_body >= 0:
         if wp.dot(normal, rd) > 0.0:  # the face seen from behind (an open or thin mesh): light its other side
             normal = -normal
         color = shade(albedo, normal, view.light, 0.5)
         label = FIRST_BODY_LABEL + hit_body
-    write_pixel(image, labels, w, p, color, write_labels, label, bg_label[p])
+    write_pixel(image, labels, w, p, color, write_labels, label, bg.label[p])
