@@ -46,18 +46,9 @@ import torch
 import warp as wp
 
 from ._model import HINGE, OBJECT_HINGE, SceneModel
-from ._render_kernels import (
-    Backdrop,
-    LABEL_FLOOR,
-    LABEL_HAND,
-    LABEL_OBJECT,
-    LABEL_SKY,
-    RenderScene,
-    View,
-    background_kernel,
-    place_segments,
-    render_kernel,
-)
+from ._pixel_funcs import LABEL_SKY, Backdrop, View
+from ._render_kernels import (LABEL_FLOOR, LABEL_HAND, LABEL_OBJECT, RenderScene, background_kernel, place_segments,
+                              render_kernel)
 from ._hand_sim import check_device
 from ._stepper import cpu_threads, launch_stream, run_blocks
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._render_kernels import (LABEL_SKY, Backdrop, View, checker, pixel_ray, plane_distance, shade, sphere_span,
-                              world_pixel, write_backdrop, write_pixel)
+from ._pixel_funcs import (LABEL_SKY, Backdrop, View, checker, pixel_ray, plane_distance, shade, sphere_span,
+                           world_pixel, write_backdrop, write_pixel)
 
 __all__ = ["LABEL_SKY", "LABEL_TABLE", "FIRST_BODY_LABEL", "MeshScene", "mesh_background_kernel",
            "place_bodies", "mesh_render_kernel"]
