@@ -163,8 +163,11 @@ class ArticulatedTrajectory:
             return out
 
         if adjoint_arrays is None:
+            plan = launches(arrays, sim.model, sim.hand_model, sim.palm_model, 0)
+            self.kernel_names = [kernel.func.__name__ for kernel, _, _ in plan]  # the launches' (the adjoints':
+            # reversed), for a per-kernel profile (benchmarks/articulated_kernels.py)
             return [prepared(wp.launch(kernel, dim=d, inputs=args, device=sim.device, record_cmd=True))
-                    for kernel, d, args in launches(arrays, sim.model, sim.hand_model, sim.palm_model, 0)]
+                    for kernel, d, args in plan]
         # the finger contact's adjoint skips the spheres that touched nothing (their adjoint is zero: most of
         # them, and most of the reverse pass's time otherwise)
         forward = launches(arrays, sim.model, sim.hand_model, sim.palm_model, 1)
