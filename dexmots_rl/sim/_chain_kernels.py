@@ -10,6 +10,7 @@ import types
 
 import warp as wp
 
+from ._kernel_funcs import build_funcs
 from ._model import HINGE
 
 __all__ = ["build_chain"]
@@ -23,32 +24,8 @@ def build_chain(t) -> types.SimpleNamespace:
     Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
     point_jacobian, point_jacobian_vjp = t.point_jacobian, t.point_jacobian_vjp
 
-    # Model arrays are constants: reading them through these (empty custom adjoint) instead of indexing
-    # lets the compiler drop every adjoint term that would only flow into the model (half the reverse
-    # work of a product with a constant matrix), where a plain read keeps them alive for a runtime check.
-    @wp.func
-    def fixed_vec3(a: wp.array(dtype=vec3), i: int):
-        return a[i]
-
-    @wp.func_grad(fixed_vec3)
-    def adj_fixed_vec3(a: wp.array(dtype=vec3), i: int, adj_ret: vec3):
-        return
-
-    @wp.func
-    def fixed_mat33(a: wp.array(dtype=mat33), i: int):
-        return a[i]
-
-    @wp.func_grad(fixed_mat33)
-    def adj_fixed_mat33(a: wp.array(dtype=mat33), i: int, adj_ret: mat33):
-        return
-
-    @wp.func
-    def fixed(a: wp.array(dtype=dtype), i: int):
-        return a[i]
-
-    @wp.func_grad(fixed)
-    def adj_fixed(a: wp.array(dtype=dtype), i: int, adj_ret: dtype):
-        return
+    funcs = build_funcs(dtype)
+    fixed_vec3, fixed_mat33, fixed = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed
 
     @wp.func
     def jac_ang(jt: wp.int32, a: vec3):

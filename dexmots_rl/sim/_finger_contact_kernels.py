@@ -33,6 +33,7 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
     mat33 = wp.types.matrix((3, 3), dtype)
     funcs = build_funcs(dtype)
     softplus, box_distance, grid_distance = funcs.softplus, funcs.box_distance, funcs.grid_distance
+    fixed_vec3 = funcs.fixed_vec3  # a model read without an adjoint
     normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
 
     @wp.func
@@ -165,7 +166,7 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
                 if touching[w, s] == 0:
                     skip = True
             if not skip:
-                p = x + R * m.point_pos[s]
+                p = x + R * fixed_vec3(m.point_pos, s)
                 vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
                 f_sum = vec3()  # the bodies' force on the sphere
                 hit = int(0)

@@ -105,6 +105,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
 
     funcs = build_funcs(dtype)
     axis_angle, limit_ramp = funcs.axis_angle, funcs.limit_ramp
+    fixed, fixed_vec3, fixed_mat33 = funcs.fixed, funcs.fixed_vec3, funcs.fixed_mat33  # model reads, no adjoint
     joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
 
     @wp.func
@@ -137,14 +138,14 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     ):
         """Every link's frame through its finger chain, once per substep for the contact and the solve."""
         w, f = wp.tid()
-        R = m.base_rot[f]
-        x = m.base_pos[f]
+        R = fixed_mat33(m.base_rot, f)
+        x = fixed_vec3(m.base_pos, f)
         for k in range(J):
             i = f * J + k
-            x = x + R * m.off_pos[i]
-            R = R * m.off_rot[i]
-            link_a[w, i] = R * m.axis[i]
-            R = R * axis_angle(m.axis[i], hq[w, i])
+            x = x + R * fixed_vec3(m.off_pos, i)
+            R = R * fixed_mat33(m.off_rot, i)
+            link_a[w, i] = R * fixed_vec3(m.axis, i)
+            R = R * axis_angle(fixed_vec3(m.axis, i), hq[w, i])
             link_x[w, i] = x
             link_R[w, i] = R
 
@@ -169,7 +170,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         om = vec3()
         al = vec3()  # velocity-product angular acceleration
         acc = -m.gravity  # velocity-product acceleration of the joint origin (gravity as the base's acceleration)
-        o_prev = m.base_pos[f]
+        o_prev = fixed_vec3(m.base_pos, f)
         O = mat3J()
         A = mat3J()
         M = matJ()
@@ -192,15 +193,15 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             O = O + wp.outer(x, unit_j(k))
             A = A + wp.outer(a, unit_j(k))
             # the link's com Jacobian Jv and angular Jacobian Jw over the chain's joints so far
-            c = x + R * m.com[i]
+            c = x + R * fixed_vec3(m.com, i)
             Jv = mat3J()
             for kk in range(J):
                 if kk <= k:
                     ak = vec3(A[0, kk], A[1, kk], A[2, kk])
                     Jv = Jv + wp.outer(wp.cross(ak, c - vec3(O[0, kk], O[1, kk], O[2, kk])), unit_j(kk))
             Jw = A
-            ml = m.mass[i]
-            Iw = R * m.inertia[i] * wp.transpose(R)
+            ml = fixed(m.mass, i)
+            Iw = R * fixed_mat33(m.inertia, i) * wp.transpose(R)
             ac = acc + wp.cross(al, c - x) + wp.cross(om, wp.cross(om, c - x))
             M = M + ml * wp.transpose(Jv) * Jv + wp.transpose(Jw) * Iw * Jw
             bias = bias + wp.transpose(Jv) * (ml * ac) + wp.transpose(Jw) * (Iw * al + wp.cross(om, Iw * om))
@@ -212,17 +213,18 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             qdk = qdf[k]
             drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
             gain = dt * kd[w, i] + dt * dt * kp[w, i]
-            effort = m.effort[i]
+            effort = fixed(m.effort, i)
             if effort > dtype(0.0):
                 sat = wp.tanh(drive / effort)
                 drive = effort * sat
                 gain = gain * (dtype(1.0) - sat * sat)
             e = unit_j(k)
-            diag = diag + (m.armature[i] + dt * m.damping[i] + gain) * wp.outer(e, e)
+            diag = diag + (fixed(m.armature, i) + dt * fixed(m.damping, i) + gain) * wp.outer(e, e)
             width = dtype(LIMIT_WIDTH)
-            lim = m.limit_ke[i] * (limit_ramp(m.lower[i] - qk, width) - limit_ramp(qk - m.upper[i], width))
-            fric = joint_friction(m.friction[i], qdk)
-            rhs = rhs + (tau[w, i] + drive - m.damping[i] * qdk - fric + lim + gen[w, i]) * e
+            lim = fixed(m.limit_ke, i) * (limit_ramp(fixed(m.lower, i) - qk, width)
+                                          - limit_ramp(qk - fixed(m.upper, i), width))
+            fric = joint_friction(fixed(m.friction, i), qdk)
+            rhs = rhs + (tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[w, i]) * e
         rhs = rhs - bias
         qdd = solve_jj(M + diag, rhs)
         for k in range(J):
@@ -242,14 +244,14 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     ):
         w = wp.tid()
         for f in range(F):
-            R = m.base_rot[f]
-            x = m.base_pos[f]
+            R = fixed_mat33(m.base_rot, f)
+            x = fixed_vec3(m.base_pos, f)
             for k in range(J):
                 i = f * J + k
-                x = x + R * m.off_pos[i]
-                R = R * m.off_rot[i] * axis_angle(m.axis[i], hq[w, i])
+                x = x + R * fixed_vec3(m.off_pos, i)
+                R = R * fixed_mat33(m.off_rot, i) * axis_angle(fixed_vec3(m.axis, i), hq[w, i])
                 write_pose(pose, w, i, x, R)
-            tip = x + R * m.tip_pos[f]
+            tip = x + R * fixed_vec3(m.tip_pos, f)
             for c in range(3):
                 tips[w, f * 3 + c] = tip[c]
         for b in range(B):

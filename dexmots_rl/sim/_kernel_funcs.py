@@ -1,6 +1,7 @@
 """Small warp functions the articulated-object kernels share, generic in the float type.
 
-:func:`build_funcs` returns them for one float type (cached): ``softplus`` (the contact penalty's smooth ramp),
+:func:`build_funcs` returns them for one float type (cached): ``fixed`` / ``fixed_vec3`` / ``fixed_mat33``
+(a model array's element, read without an adjoint), ``softplus`` (the contact penalty's smooth ramp),
 ``normal_force`` / ``slip_norm`` / ``body_mobility`` / ``tangent_mobility`` (the one contact law's normal force with
 its implicit damping, its friction's smoothing, and the mobilities the damping and the friction are integrated
 against),
@@ -28,6 +29,9 @@ class KernelFuncs:
     """The functions :func:`build_funcs` builds for one float type (wp.func each; the module docstring says what
     each does)."""
 
+    fixed: object
+    fixed_vec3: object
+    fixed_mat33: object
     softplus: object
     normal_force: object
     slip_norm: object
@@ -50,6 +54,33 @@ def build_funcs(float_type) -> KernelFuncs:
     vec3 = wp.types.vector(3, dtype)
     vec4 = wp.types.vector(4, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
+
+    # Model arrays are constants: reading them through fixed* (empty custom adjoint) instead of indexing lets the
+    # compiler drop every adjoint term that would only flow into the model (half the reverse work of a product
+    # with a constant matrix), where a plain read keeps them alive for a runtime check.
+    @wp.func
+    def fixed_vec3(a: wp.array(dtype=vec3), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_vec3)
+    def adj_fixed_vec3(a: wp.array(dtype=vec3), i: int, adj_ret: vec3):
+        return
+
+    @wp.func
+    def fixed_mat33(a: wp.array(dtype=mat33), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed_mat33)
+    def adj_fixed_mat33(a: wp.array(dtype=mat33), i: int, adj_ret: mat33):
+        return
+
+    @wp.func
+    def fixed(a: wp.array(dtype=dtype), i: int):
+        return a[i]
+
+    @wp.func_grad(fixed)
+    def adj_fixed(a: wp.array(dtype=dtype), i: int, adj_ret: dtype):
+        return
 
     @wp.func
     def softplus(x: dtype, beta: dtype):
@@ -261,7 +292,8 @@ def build_funcs(float_type) -> KernelFuncs:
             n = wp.normalize(n * wp.max(dg[0], dtype(0.0)) + beyond)
         return vec4(d, n[0], n[1], n[2])
 
-    return KernelFuncs(softplus=softplus, normal_force=normal_force, slip_norm=slip_norm, body_mobility=body_mobility,
+    return KernelFuncs(fixed=fixed, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, softplus=softplus,
+                       normal_force=normal_force, slip_norm=slip_norm, body_mobility=body_mobility,
                        tangent_mobility=tangent_mobility, surface_contact=surface_contact, axis_angle=axis_angle,
                        limit_ramp=limit_ramp, limit_slope=limit_slope, joint_friction=joint_friction,
                        write_pose=write_pose, box_distance=box_distance, trilinear=trilinear,
