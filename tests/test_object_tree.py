@@ -8,30 +8,37 @@ from dexmots_rl.assets.objects import Geom, Joint, ObjectAsset, Part, load_objec
 from dexmots_rl.sim import ObjectSimulator, load_object_tree
 
 
-def _tree_object(base: str) -> ObjectAsset:
-    """A free or fixed base with three parts: two hinges in a chain and a slide, every axis tilted."""
+def _tree_object(base: str, parts: int) -> ObjectAsset:
+    """A free or fixed base with one part on a tilted hinge, or (``parts=3``) three: two hinges in a chain and a
+    slide, every axis tilted."""
+    chain = (
+        Part("slider", (Geom("s", "box", (0.01, 0.01, 0.02), mass=0.04),), parent="body", pos=(-0.02, 0.02, 0.2),
+             joint=Joint("pump", "slide", (0, 0.6, 0.8), (-0.1, 0.1), damping=0.0, armature=0.0)),
+        Part("tip", (Geom("s2", "sphere", (0.01,), pos=(0.0, 0.02, 0.0), mass=0.02),), parent="trig",
+             pos=(0.0, 0.0, -0.04), joint=Joint("tipj", "hinge", (1, 0, 0), (-1, 1), damping=0.0, armature=0.0)),
+    )
     return ObjectAsset("probe", "test", (
         Part("body", (Geom("b", "box", (0.03, 0.04, 0.1), pos=(0.01, 0, 0.1), mass=0.3),)),
         Part("trig", (Geom("t", "capsule", (0.008, 0.03), pos=(0, 0.01, -0.02), mass=0.05),), parent="body",
              pos=(0.04, 0, 0.15), quat=(0.9238795, 0, 0.3826834, 0),
              joint=Joint("trigger", "hinge", (0, 1, 0), (-1, 1), anchor=(0.0, 0.0, 0.01), damping=0.0, armature=0.0)),
-        Part("slider", (Geom("s", "box", (0.01, 0.01, 0.02), mass=0.04),), parent="body", pos=(-0.02, 0.02, 0.2),
-             joint=Joint("pump", "slide", (0, 0.6, 0.8), (-0.1, 0.1), damping=0.0, armature=0.0)),
-        Part("tip", (Geom("s2", "sphere", (0.01,), pos=(0.0, 0.02, 0.0), mass=0.02),), parent="trig",
-             pos=(0.0, 0.0, -0.04), joint=Joint("tipj", "hinge", (1, 0, 0), (-1, 1), damping=0.0, armature=0.0)),
+        *(chain if parts == 3 else ()),
     ), base=base)
 
 
+# one part: the library objects' tree size, whose float64 builds the gradient tests below share; the three-part
+# chain is a float64 build of its own (minutes cold), checked in the slow set
 @pytest.mark.parametrize("masses", ["model", "parameters"])
+@pytest.mark.parametrize("parts", [1, pytest.param(3, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("base", ["free", "fixed"])
-def test_accelerations_match_mujoco(base, masses):
+def test_accelerations_match_mujoco(base, parts, masses):
     """Mass matrix and bias forces (Coriolis, centrifugal, gravity) through the accelerations of one tiny step
     from a random state, against MuJoCo's qacc (no contact, no joint springs). ``parameters``: every moving
     body's mass parameter ``<body>/mass`` set apart from the model's (each by its own factor) and MuJoCo's
     model given the same masses, the inertias scaled with them."""
     import mujoco
 
-    tree, m = load_object_tree(_tree_object(base))
+    tree, m = load_object_tree(_tree_object(base, parts))
     factors = dict(zip(tree.moving_bodies, (1.7, 0.6, 2.3, 0.8, 1.3)))
     if masses == "parameters":
         for b, factor in factors.items():
