@@ -177,9 +177,11 @@ def test_unknown_keys_of_every_section_fail(tmp_path, override, message):
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("override, key", [("algo.clip_epsilon=nan", "algo.clip_epsilon"),
-                                           ("task.ramp_steps=0", "task.ramp_steps"),
-                                           ("+algo.clip_epsilom=0.1", "algo.clip_epsilom")])
+# each case starts a process (imports alone are seconds of CPU): the fast set runs one, every section's in the slow
+@pytest.mark.parametrize("override, key", [
+    pytest.param("algo.clip_epsilon=nan", "algo.clip_epsilon", marks=pytest.mark.slow),
+    pytest.param("task.ramp_steps=0", "task.ramp_steps", marks=pytest.mark.slow),
+    ("+algo.clip_epsilom=0.1", "algo.clip_epsilom")])
 def test_cli_prints_one_line_naming_the_key(tmp_path, override, key):
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.run([sys.executable, "-m", "dexmots_rl.apps.train", "algo=ppo", f"run_dir={tmp_path / 'run'}",

@@ -63,6 +63,7 @@ def test_start_state_gradients_match_central_differences(knob_data):
         identify(problem, "gn", iterations=1)
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_articulated_parameter_gradients_match_central_differences():
     """An articulated object's joint parameters (damping, friction, stiffness, rest of the spray bottle's trigger)
     get gradients through the hand-and-object step, in float64, equal to central differences."""

@@ -14,7 +14,7 @@ joint, the base's pose (held) and a zero net wrench on the base; tasks read it w
 
 Example:
     >>> from dexmots_rl.trajectories.joint_planner import optimize_joint_torques
-    >>> plan = optimize_joint_torques("drawer_a", "drawer", start=0.0, goal=0.05, steps=10, iterations=20,
+    >>> plan = optimize_joint_torques("drawer_a", "drawer", start=0.0, goal=0.05, steps=10, iterations=5,
     ...                               progress=False)
     >>> plan.trajectory.horizon, plan.final_error < plan.initial_error
     (11, True)
