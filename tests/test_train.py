@@ -127,8 +127,11 @@ def test_ahac_runs_and_records_its_horizon(tmp_path):
     assert all(2 <= r["horizon"] <= 6 for r in _rows(tmp_path / "run"))
 
 
-@pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"), ("task.action=velocity", "action"),
-                                             ("task.reward.lambda_act=-1", "lambda_act")])
+# each case starts a process (seconds of CPU in imports alone): one in the fast set, the others in the slow one
+@pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"),
+                                             pytest.param("task.action=velocity", "action", marks=pytest.mark.slow),
+                                             pytest.param("task.reward.lambda_act=-1", "lambda_act",
+                                                          marks=pytest.mark.slow)])
 def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
     proc = subprocess.run([sys.executable, "-m", "dexmots_rl.apps.train", *TINY_SHAC,
                            f"run_dir={tmp_path}/r", "algo.iterations=1", override], capture_output=True, text=True, timeout=300)
