@@ -1,10 +1,10 @@
 """Shared fixtures for the dexmots_rl test suite.
 
 Warp compiles one kernel module per scene structure and float type (docs/results.md, compile times; then
-cached on disk), so the whole suite deliberately uses only three specialisations:
+cached on disk), so tests share scenes and precisions; docs/devnotes.md (the test suite's two sets) says which
+builds the fast set may make. The fixtures here share the two the simulator tests use most:
 
-* the claw scene in float32 (the envs' default dtype),
-* the claw scene in float64 (gradient checks and dynamics sanity),
+* the claw scene, in float64 (gradient checks and dynamics sanity) and float32 (the envs' default dtype),
 * the 3D oracle scene ``tests/assets/chain3d.xml`` in float64 (dynamics against MuJoCo).
 
 ``Simulator`` objects are cheap once their kernels are loaded (``build_kernels`` is cached per process), so
