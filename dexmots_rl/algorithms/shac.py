@@ -67,7 +67,9 @@ def build(cfg: DictConfig, rank: int = 0):
     ahac = None
     if cfg.algo.name == "ahac":
         ahac = AdaptiveHorizon(cfg.algo.horizon_min, cfg.algo.horizon_max, cfg.algo.contact_threshold,
-                               cfg.algo.dual_lr, horizon_init=cfg.algo.horizon)
+                               cfg.algo.dual_lr, horizon_init=cfg.algo.horizon,
+                               clip_share_target=cfg.algo.get("horizon_clip_target"),
+                               clip_share_lr=cfg.algo.get("horizon_clip_lr", 20.0))
     torch.manual_seed(cfg.seed + rank)
     return env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac
 
@@ -136,6 +138,8 @@ def _train(run: RunDirectory, dist) -> dict:
             # runs that failed (docs/devnotes.md), and the smoothness penalty's dual follows it
             share = float(dist.mean(torch.tensor(clipped / rollout.numel(), dtype=torch.float64)))
             counters["smooth_scale"] = _smooth_scale(cfg.algo, counters["smooth_scale"], share)
+            if ahac is not None:  # the next rollout's horizon follows the capped share too (horizon_clip_target)
+                ahac.update_clip_share(share)
             smooth = None
             if not (grad_norm == grad_norm) or grad_norm > cfg.algo.skip_grad_norm:  # NaN or huge: skip, count
                 counters["skipped_updates"] += 1

@@ -56,6 +56,8 @@ ALGO_FIELDS: dict[str, tuple[Any, Optional[dict]]] = {
     "horizon_max": (int, _POSITIVE),
     "contact_threshold": (float, _POSITIVE),
     "dual_lr": (float, _POSITIVE),
+    "horizon_clip_target": (Optional[float], rule(ge=0, lt=1)),
+    "horizon_clip_lr": (float, _POSITIVE),
     "truncate": (bool, None),
     "keep_best": (bool, None),
     "best_window": (int, _POSITIVE),

@@ -27,6 +27,19 @@ Relation to the public AHAC code: it keeps one dual per horizon step (``λ_t += 
 moves a continuous horizon by their sum. A single projected dual mapped directly onto ``H`` has the same
 fixed point (mean stiff contact at ``C̄``), is monotone in the contact history, and is trivial to test and to
 checkpoint; the per-world asynchronous truncation of that code is replaced by the batch-prefix cut above.
+
+**Gradient-health horizon** (``clip_share_target``, off by default; :meth:`AdaptiveHorizon.update_clip_share`):
+the contact force is a proxy for where gradients through contact stop being informative. Where it is a poor
+one (on the jar the mean force stays at 1–2 N while the first-order gradient disagrees with a zeroth-order
+estimate beyond two steps and the adjoint cap fires on 10–19 % of world-steps), the measured symptom can drive
+the horizon instead. A second dual, on the share ``q`` of world-steps whose adjoint the simulator capped in the
+last backward pass, is updated the same way and shortens the horizon alongside the first::
+
+    μ       <- clip(μ + lr_q · (q − q̄), 0, ν_max)
+    H        = clip(round(H_max − κ · (ν + μ)), H_min, H_max)
+
+so the horizon shrinks while more than ``q̄`` of the adjoints are capped and grows back (as far as the contact
+dual allows) while fewer are.
 """
 
 from __future__ import annotations
@@ -56,6 +69,10 @@ class AdaptiveHorizon(nn.Module):
         contact_key: key of the per-step contact force in a rollout (the DexMOTS envs write
             ``("object", "contact_force")`` shaped ``[N, 1]``, so a rollout holds it under
             ``("next", "object", "contact_force")``, shaped ``[N, T, 1]``).
+        clip_share_target: ``q̄``, the share of capped world-step adjoints above which the horizon shortens
+            (``None``: the contact dual alone sets the horizon).
+        clip_share_lr: ``lr_q``, dual units per unit of share above or below ``q̄`` (20: a share 10 points
+            above the target removes two horizon steps per rollout).
 
     Example:
         >>> ahac = AdaptiveHorizon(horizon_min=8, horizon_max=64)
@@ -77,6 +94,8 @@ class AdaptiveHorizon(nn.Module):
         horizon_init: int | None = None,
         world_reduction: str = "mean",
         contact_key: NestedKey = ("next", "object", "contact_force"),
+        clip_share_target: float | None = None,
+        clip_share_lr: float = 20.0,
     ):
         super().__init__()
         if not 0 < horizon_min <= horizon_max:
@@ -85,6 +104,10 @@ class AdaptiveHorizon(nn.Module):
             raise ValueError("lr and contact_threshold must be >= 0 and steps_per_dual > 0")
         if world_reduction not in ("mean", "max"):
             raise ValueError(f"world_reduction must be 'mean' or 'max', got {world_reduction!r}")
+        if clip_share_target is not None and not 0 <= clip_share_target < 1:
+            raise ValueError(f"clip_share_target must lie in [0, 1), got {clip_share_target}")
+        if clip_share_lr < 0:
+            raise ValueError(f"clip_share_lr must be >= 0, got {clip_share_lr}")
         self.horizon_min, self.horizon_max = int(horizon_min), int(horizon_max)
         self.contact_threshold, self.lr, self.steps_per_dual = float(contact_threshold), float(lr), float(steps_per_dual)
         self.world_reduction, self.contact_key = world_reduction, contact_key
@@ -96,11 +119,15 @@ class AdaptiveHorizon(nn.Module):
         self.register_buffer("nu", torch.tensor((self.horizon_max - init) / self.steps_per_dual, dtype=torch.float64))
         self.register_buffer("last_contact", torch.tensor(float("nan"), dtype=torch.float64))
         self.register_buffer("num_updates", torch.tensor(0, dtype=torch.int64))
+        self.clip_share_target, self.clip_share_lr = clip_share_target, float(clip_share_lr)
+        if clip_share_target is not None:  # only then: checkpoints of contact-only runs keep their keys
+            self.register_buffer("mu", torch.tensor(0.0, dtype=torch.float64))
 
     @property
     def horizon(self) -> int:
-        """The horizon for the next rollout, ``clip(round(H_max − κ ν), H_min, H_max)``."""
-        h = round(self.horizon_max - self.steps_per_dual * float(self.nu))
+        """The horizon for the next rollout, ``clip(round(H_max − κ (ν + μ)), H_min, H_max)``."""
+        dual = float(self.nu) + (float(self.mu) if self.clip_share_target is not None else 0.0)
+        h = round(self.horizon_max - self.steps_per_dual * dual)
         return int(min(max(h, self.horizon_min), self.horizon_max))
 
     def step_statistic(self, contact_force: torch.Tensor) -> torch.Tensor:
@@ -131,6 +158,17 @@ class AdaptiveHorizon(nn.Module):
                   float(s), self.contact_threshold, float(self.nu), self.horizon)
         return self.horizon
 
+    @torch.no_grad()
+    def update_clip_share(self, share: float) -> int:
+        """One step of the gradient-health dual ``μ`` from the share of world-steps whose adjoint was capped in
+        the last backward pass; returns the new :attr:`horizon` (unchanged without ``clip_share_target``)."""
+        if self.clip_share_target is None or not share == share:  # off, or NaN: no evidence either way
+            return self.horizon
+        self.mu.copy_((self.mu + self.clip_share_lr * (share - self.clip_share_target)).clamp(0.0, self.nu_max))
+        log.debug("AHAC: capped share %.4f (target %.4f) -> mu %.3f, horizon %d",
+                  share, self.clip_share_target, float(self.mu), self.horizon)
+        return self.horizon
+
     def update_from_rollout(self, rollout: TensorDictBase) -> int:
         """:meth:`update` with ``rollout[contact_key]`` (batch ``[N, T]``)."""
         return self.update(rollout.get(self.contact_key))
@@ -154,5 +192,8 @@ class AdaptiveHorizon(nn.Module):
         return rollout[..., :length]
 
     def extra_repr(self) -> str:
-        return (f"horizon={self.horizon}, range=[{self.horizon_min}, {self.horizon_max}], "
+        text = (f"horizon={self.horizon}, range=[{self.horizon_min}, {self.horizon_max}], "
                 f"threshold={self.contact_threshold}, lr={self.lr}, nu={float(self.nu):.4f}")
+        if self.clip_share_target is not None:
+            text += f", clip_share_target={self.clip_share_target}, mu={float(self.mu):.4f}"
+        return text
