@@ -126,3 +126,48 @@ def test_update_from_env_rollout():
 def test_docstring_example_runs():
     result = doctest.testmod(ahac_module, extraglobs={"torch": torch})
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_capped_share_dual_shortens_the_horizon_and_lets_it_grow_back():
+    ahac = AdaptiveHorizon(horizon_min=8, horizon_max=64, horizon_init=32, clip_share_target=0.02, clip_share_lr=20.0)
+    assert ahac.update_clip_share(0.12) == 30  # mu = 20 * (0.12 - 0.02) = 2
+    assert float(ahac.mu) == pytest.approx(2.0)
+    horizons = [ahac.update_clip_share(0.5) for _ in range(10)]  # +9.6 per update
+    assert all(a >= b for a, b in zip(horizons, horizons[1:])) and horizons[-1] == 8
+    assert float(ahac.mu) == pytest.approx(ahac.nu_max)  # clipped: no wind-up
+    assert ahac.update_clip_share(float("nan")) == 8  # no evidence: unchanged
+    horizons = [ahac.update_clip_share(0.0) for _ in range(200)]  # -0.4 per update
+    assert all(a <= b for a, b in zip(horizons, horizons[1:])) and horizons[-1] == 32  # back to the contact dual's
+    assert float(ahac.mu) == 0.0
+    ahac.update(forces(0.0))  # the contact dual still lengthens it on its own
+    assert ahac.horizon == 32 and float(ahac.nu) < 32
+    off = AdaptiveHorizon(horizon_init=32)
+    assert off.update_clip_share(0.9) == 32 and "mu" not in off.state_dict()  # off: old checkpoints' keys
+    with pytest.raises(ValueError, match="clip_share_target"):
+        AdaptiveHorizon(clip_share_target=1.5)
+    with pytest.raises(ValueError, match="clip_share_lr"):
+        AdaptiveHorizon(clip_share_target=0.02, clip_share_lr=-1.0)
+    restored = AdaptiveHorizon(horizon_init=32, clip_share_target=0.02)
+    ahac.update_clip_share(0.3)
+    restored.load_state_dict(ahac.state_dict())
+    assert torch.equal(restored.mu, ahac.mu) and restored.horizon == ahac.horizon
+
+
+@pytest.mark.parametrize("target", [None, 0.02])
+def test_training_horizon_follows_a_forced_high_capped_share(tmp_path, target):
+    """screw_claw, 4 worlds: a cap at the median world (adjoint_clip=1) caps a large share of adjoints; with
+    ``horizon_clip_target`` the horizon falls to its minimum, without it the contact dual lengthens it."""
+    from test_train import _cfg, _rows
+
+    from dexmots_rl.apps.train import run as train
+
+    train(_cfg(tmp_path / "run", "algo=ahac", "algo.iterations=3", "algo.horizon=6", "algo.horizon_min=2",
+               "algo.horizon_max=8", "algo.adjoint_clip=1.0", f"algo.horizon_clip_target={target or 'null'}"))
+    rows = _rows(tmp_path / "run")
+    assert all(r["clip_share"] > 0.1 for r in rows)
+    horizons = [r["horizon"] for r in rows]
+    assert horizons[0] == 6
+    if target is None:
+        assert all(a <= b for a, b in zip(horizons, horizons[1:]))
+    else:
+        assert horizons[1:] == [2, 2]
