@@ -392,9 +392,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             body_w[w, b] = om
 
     @wp.func
-    def table_top(m: Model, v: int, k: int, ps: vec3, rad: dtype):
-        """A sample sphere's penetration into the table's top (variant v) and the top's normal (the surface of
-        sim/_surface_kernels.py)."""
+    def table_top(m: Model, v: int, k: int, ps: vec3, rad: dtype):  # a surface of sim/_surface_kernels.py
         return m.table_z[v] + rad - ps[2], vec3(dtype(0.0), dtype(0.0), dtype(1.0))
 
     return ObjectKernels(Model=Model, substep=substep, frames=frames, table=TABLE, table_mu_col=TABLE_MU_COL,
