@@ -110,3 +110,10 @@ def test_the_task_table_has_a_row_for_every_registered_task(task):
     rows = _task_table_rows()
     assert task in rows, f"README's task table lacks {task}"
     assert task == "operate" or "](docs/results.md#" in rows[task], rows[task]
+
+
+@pytest.mark.parametrize("page, most", [("README.md", 600), ("docs/results.md", 500)])
+def test_guide_and_results_stay_a_page(page, most):
+    """The README is a guide and docs/results.md a page of current figures (superseded ones live in git)."""
+    lines = (Path(__file__).resolve().parents[1] / page).read_text().count("\n")
+    assert lines <= most, f"{page} has {lines} lines (at most {most}): move detail to docs/ or drop superseded figures"
