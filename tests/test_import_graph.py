@@ -206,25 +206,3 @@ def test_imports_in_a_fresh_interpreter(package):
                           cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-2000:]
 
-
-#: what the trainers and the recorder may read of a simulator object: its model (sizes, scene, time step)
-SIM_MODEL_FACTS = {"dt", "dtype", "nu", "num_bodies", "num_worlds", "scene", "tree"}
-#: simulator state they read from the simulator itself, and why (everything else comes in the TensorDict)
-SIM_STATE_READS = {("recording/recorder.py", "observe"): "a bare simulator (no env) is recorded from its joint "
-                   "positions; an env's frames carry every body's pose as (sim, body_pose)"}
-
-
-def test_trainers_and_recorder_read_simulator_state_from_the_tensordict():
-    """The trainers (gradient counters: ``("info", ...)`` keys and the env's ``gradient_counts``) and the
-    recorder (``("sim", "body_pose")``) take the simulator's state from the env's TensorDicts: of ``x.sim``
-    they read the model only."""
-    reads = []
-    for folder in ("algorithms", "recording"):
-        for path in sorted((PACKAGE / folder).glob("*.py")):
-            where = f"{folder}/{path.name}"
-            for node in ast.walk(ast.parse(path.read_text())):
-                if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute)
-                        and node.value.attr == "sim" and node.attr not in SIM_MODEL_FACTS
-                        and (where, node.attr) not in SIM_STATE_READS):
-                    reads.append(f"{where}:{node.lineno} reads sim.{node.attr}")
-    assert not reads, "publish it as a TensorDict key of the env instead:\n" + "\n".join(reads)

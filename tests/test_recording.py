@@ -235,3 +235,21 @@ def test_an_env_is_recorded_from_its_tensordicts_alone(tmp_path, monkeypatch):
         rec.record_rollout(rollout)
     recording = read_recording(tmp_path / "env.mcap")
     assert recording.num_frames == 4 and recording.num_worlds == 2
+
+
+@pytest.mark.parametrize("drop, error, words", [
+    (("sim", "body_pose"), KeyError, "no ('sim', 'body_pose')"),
+    (None, ValueError, "('sim', 'body_pose') has shape (2, 4, 7)"),
+])
+def test_a_frame_without_every_bodys_pose_is_refused_and_nothing_written(tmp_path, drop, error, words):
+    env = make_env("screw_claw", num_envs=2, differentiable=False, seed=0)
+    frame = env.reset()
+    if drop is None:  # a pose per body, one body short
+        frame.set(("sim", "body_pose"), frame.get(("sim", "body_pose"))[:, 1:])
+    else:
+        del frame[drop]
+    rec = EpisodeRecorder(tmp_path / "env.mcap", env)
+    with pytest.raises(error) as caught:
+        rec.record(frame)
+    assert words in str(caught.value)
+    assert rec.num_frames == 0 and not (tmp_path / "env.mcap").exists()

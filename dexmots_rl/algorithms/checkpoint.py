@@ -89,11 +89,11 @@ def rng_states(env) -> dict[str, torch.Tensor]:
     """The random streams a training run draws from: torch's (sampled actions, minibatch order, ...) and the
     task env's generator (the worlds' resets: goals, frictions, starts); ``env`` the task env or a
     ``TransformedEnv`` on it."""
-    return {"torch": torch.get_rng_state(), "env": getattr(env, "base_env", env).generator.get_state()}
+    return {"torch": torch.get_rng_state(), "env": env.get_rng_state()}
 
 
 def restore_rng_states(env, states: dict[str, torch.Tensor]) -> None:
     """Set the streams :func:`rng_states` saved (a checkpoint's ``rng``)."""
     torch.set_rng_state(states["torch"])
     if "env" in states:
-        getattr(env, "base_env", env).generator.set_state(states["env"])
+        env.set_rng_state(states["env"])

@@ -58,7 +58,7 @@ def evaluate_policy(actor, task_cfg, episodes: int = 100, seed: int = 12345, dev
     kept = ~nxt.get("terminated").squeeze(-1).any(-1)
     won = success[:, -1] & kept
     first = torch.where(success.any(-1), success.float().argmax(-1), torch.full_like(won, -1, dtype=torch.long))
-    tts = (first[won] + 1).float() * base.sim.dt
+    tts = (first[won] + 1).float() * base.dt
     return {
         "success_rate": float(won.float().mean()),
         "episodes": episodes,

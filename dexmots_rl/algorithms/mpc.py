@@ -191,8 +191,9 @@ class PredictiveSampler(TensorDictModuleBase):
         env = self.sample_env
         first = ((self.low + self.high) / 2).expand(state.batch_size[0], -1).clone()
         if self.initial_plan == "hold" and getattr(env, "action_type", None) in ("position", "vi"):
-            hand_q = state.get(("sim", "joint_q"))[:, :env.sim.nu]
-            first[:, :env.sim.nu] = env.actions.actions_for_targets(hand_q.to(first.dtype))
+            nu = env.scene.num_hand_dofs
+            hand_q = state.get(("sim", "joint_q"))[:, :nu]
+            first[:, :nu] = env.actions.actions_for_targets(hand_q.to(first.dtype))
         return first.clamp(self.low, self.high).unsqueeze(1).expand(-1, self.knots, -1).clone()
 
     def warm_start(self, state: TensorDictBase) -> torch.Tensor:

@@ -92,8 +92,8 @@ class PGDMFeatures:
     the reward's constants)."""
 
     def __init__(self, task_env, algo):
-        scene, spec = task_env.sim.scene, task_env.observation_spec
-        self.articulated, self.nu, self.num_fingers = bool(scene.articulated), task_env.sim.nu, scene.num_fingers
+        scene, spec = task_env.scene, task_env.observation_spec
+        self.articulated, self.nu, self.num_fingers = bool(scene.articulated), scene.num_hand_dofs, scene.num_fingers
         self.coords = task_env.goal_window_widths()[0]  # the reference's object coordinates per step
         # the object's state as the task env writes it: a part's angles and rates (and, for a tool, its base's
         # pose: a free base must be held), or a free body's pose and velocities
@@ -116,7 +116,7 @@ class PGDMFeatures:
         # error is then a position, in m), and the base's (shift m, tilt rad) from where it stood; bound
         # methods and plain values, not the env (an nn.Module must not become a submodule of a policy)
         self.part = getattr(task_env, "joint_index", None) if self.articulated else None  # None: a knob task's
-        self.slides = bool(self.part is not None and task_env.sim.tree.joint_kind[self.part] == SLIDE)
+        self.slides = bool(self.part is not None and scene.tree.joint_kind[self.part] == SLIDE)
         self._base_motion = getattr(task_env, "base_motion", None) if self.part is not None else None
 
     def _reflection(self, task_env) -> SignedPermutation:
@@ -241,11 +241,11 @@ def start_action(env) -> torch.Tensor | None:
     base = getattr(env, "base_env", env)
     if base.action_type == "torque":
         return None
-    state = base.generator.get_state()  # drawing start poses must not move the training's random stream
+    state = base.get_rng_state()  # drawing start poses must not move the training's random stream
     try:
-        hand = base.sample_initial(WARM_START_SAMPLES)["joint_q"][:, : base.sim.nu].mean(0)
+        hand = base.sample_initial(WARM_START_SAMPLES)["joint_q"][:, : base.scene.num_hand_dofs].mean(0)
     finally:
-        base.generator.set_state(state)
+        base.set_rng_state(state)
     action = base.actions.actions_for_targets(hand)
     if base.action_type == "vi":
         action = torch.cat([action, torch.zeros_like(action)])

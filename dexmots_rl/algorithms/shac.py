@@ -122,11 +122,10 @@ def _train(run: RunDirectory, dist) -> dict:
             # 2. actor: backpropagate the short-horizon return through the simulator
             actor_opt.zero_grad()
             loss_actor = loss.actor_loss(rollout)
-            before = env.base_env.gradient_counts()
-            loss_actor.backward()
+            with env.counting_gradients() as counted:
+                loss_actor.backward()
             # world-steps whose adjoint was capped (adjoint_clip), and whose gradient was not finite (set to zero)
-            after = env.base_env.gradient_counts()
-            clipped, nonfinite = (int((after[key] - before[key]).sum()) for key in GRADIENT_COUNTS)
+            clipped, nonfinite = (int(counted[key].sum()) for key in GRADIENT_COUNTS)
             counters["clipped_adjoints"] += clipped
             counters["nonfinite_gradients"] = counters.get("nonfinite_gradients", 0) + nonfinite
             if nonfinite:

@@ -254,9 +254,9 @@ def diagnose(task: str | None = None, run: str | None = None, horizons=(1, 4, 16
     group, worlds = 2 * pairs, num_envs * 2 * pairs
     env = make_env(task_cfg, num_envs=worlds, differentiable=True, seed=seed, device=device, adjoint_clip=clip)
     base = env.base_env
-    nu, dim = base.sim.nu, env.action_spec.shape[-1]
+    nu, dim = base.scene.num_hand_dofs, env.action_spec.shape[-1]
     vi = base.action_type == "vi"
-    joints = list(base.sim.scene.joint_names[:nu])
+    joints = list(base.scene.joint_names[:nu])
     names = [f"target:{j}" for j in joints] + [f"stiffness:{j}" for j in joints] if vi else joints
     log.info("diagnose: %s, %d start states x %d worlds, horizons %s, adjoint_clip %s", task_cfg["name"], num_envs,
              group, horizons, clip)
@@ -280,11 +280,10 @@ def diagnose(task: str | None = None, run: str | None = None, horizons=(1, 4, 16
         noise = torch.randn(horizon, num_envs, pairs, 1, dim, generator=generator).expand(-1, -1, -1, 2, -1).clone()
         noise[0, :, :, 1] *= -1  # antithetic first step; later steps' noise shared within a pair
         noise = noise.reshape(horizon, worlds, dim)
-        before = base.gradient_counts()
         ret, actions = _rollout(env, start, means, scale_w, noise, gamma)
-        ret.sum().backward()
-        after = base.gradient_counts()
-        capped, nonfinite = (int((after[key] - before[key]).sum()) for key in GRADIENT_COUNTS)
+        with env.counting_gradients() as counted:
+            ret.sum().backward()
+        capped, nonfinite = (int(counted[key].sum()) for key in GRADIENT_COUNTS)
         grads = torch.stack([a.grad for a in actions])  # [H, W, D]
         first = grads[0].norm(dim=-1)
         per_step = grads.norm(dim=-1).median(1).values.double().clamp_min(1e-30)  # [H]

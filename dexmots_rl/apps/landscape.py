@@ -90,12 +90,12 @@ def landscape_data(task: str = "screw_claw", grid: int = 21, span: float = 0.5,
     theta_ref, wrench_ref = theta[centre].detach(), wrench[centre].detach()
     f_ref = max(float(wrench_ref[:3].norm()), 1e-6)
     force_scale = f_ref if force_scale is None else force_scale
-    torque_scale = f_ref * env.sim.scene.object_bound if torque_scale is None else torque_scale
+    torque_scale = f_ref * env.scene.object_bound if torque_scale is None else torque_scale
     j_pose = angle_tracking_reward(theta, theta_ref, pose_scale)
     j_pw = j_pose + wrench_reward(wrench, wrench_ref, force_scale, torque_scale)
     (j_pose[:g2].sum() + j_pw[g2:].sum()).backward()
     grad = actions.grad[:, list(joints)].detach().double().numpy()
-    axis = torch.as_tensor(env.sim.scene.object_base_rot @ env.sim.scene.object_axis, dtype=dtype)
+    axis = torch.as_tensor(env.scene.object_base_rot @ env.scene.object_axis, dtype=dtype)
 
     def grid_of(x):
         return np.asarray(x.detach().double().numpy()).reshape(grid, grid, *x.shape[1:])
@@ -107,7 +107,7 @@ def landscape_data(task: str = "screw_claw", grid: int = 21, span: float = 0.5,
         "grad_pose": grad[:g2].reshape(grid, grid, 2), "grad_pose_wrench": grad[g2:].reshape(grid, grid, 2),
         "theta": grid_of(theta[:g2, 0]), "torque": grid_of((wrench[:g2, 3:] * axis).sum(-1)),
         "reference_action": base.double().numpy().copy(), "centre": (float(u[grid // 2]), float(v[grid // 2])),
-        "joint_names": [env.sim.scene.joint_names[j] for j in joints],
+        "joint_names": [env.scene.joint_names[j] for j in joints],
         "settle_steps": steps, "contact_force_min": float(force.min()), "contact_force_max": float(force.max()),
         "pose_scale": float(pose_scale), "force_scale": float(force_scale), "torque_scale": float(torque_scale),
         "task": task,

@@ -18,6 +18,7 @@ the reference window) and never read back. Reward terms are written under ``("re
 from __future__ import annotations
 
 from abc import abstractmethod
+from contextlib import contextmanager
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -143,6 +144,42 @@ class DexEnv(EnvBase):
         return TensorDict({GRADIENT_COUNTS[0]: sim.clipped_adjoint_steps.unsqueeze(-1).clone(),
                            GRADIENT_COUNTS[1]: sim.nonfinite_gradient_steps.unsqueeze(-1).clone()},
                           batch_size=[self.num_envs], device=self.device)
+
+    @contextmanager
+    def counting_gradients(self):
+        """Count the gradient events of a backward pass: ``with env.counting_gradients() as counted:
+        loss.backward()`` fills ``counted`` on leaving the block with each :data:`GRADIENT_COUNTS` key's per-world
+        increase (int64 [N, 1]). The counts grow while the backward runs, after the rollout's TensorDicts were
+        written, so a trainer reads them around its backward rather than from a step's keys."""
+        before, counted = self.gradient_counts(), TensorDict({}, batch_size=[self.num_envs], device=self.device)
+        yield counted
+        counted.update(self.gradient_counts() - before)
+
+    def get_rng_state(self) -> torch.Tensor:
+        """The state of the worlds' random stream (what resets draw: starts, goals, physical parameters), a
+        ``torch.ByteTensor`` to save beside ``torch.get_rng_state()`` and give back to :meth:`set_rng_state`."""
+        return self.generator.get_state()
+
+    def set_rng_state(self, state: torch.Tensor) -> None:
+        """Continue the worlds' random stream from ``state`` (one :meth:`get_rng_state` returned)."""
+        if not (isinstance(state, torch.Tensor) and state.dtype == torch.uint8
+                and state.shape == self.generator.get_state().shape):
+            got = (f"{state.dtype} {tuple(state.shape)}" if isinstance(state, torch.Tensor)
+                   else type(state).__name__)
+            raise ValueError(f"rng state: expected the uint8 tensor of shape {tuple(self.generator.get_state().shape)} "
+                             f"that get_rng_state returns, got {got}")
+        self.generator.set_state(state)
+
+    @property
+    def scene(self):
+        """The scene this env simulates (:class:`~dexmots_rl.sim.SceneModel` or
+        :class:`~dexmots_rl.sim.ArticulatedScene`): names, sizes, the object's description."""
+        return self.sim.scene
+
+    @property
+    def dt(self) -> float:
+        """Simulated seconds per env step."""
+        return self.sim.dt
 
     def bench_poses(self):
         """The :class:`~dexmots_rl.envs.BenchPoses` of this env's scene (default: the class's ``bench``)."""
@@ -284,7 +321,7 @@ class DexEnv(EnvBase):
         """Pickle / deepcopy as "rebuild from the constructor arguments": the copy gets a fresh simulator
         (warp arrays and kernels are not picklable) and the same generator state, so it continues the
         same random stream. Worker processes (spawn) and ``copy.deepcopy`` both go through this."""
-        return _rebuild_env, (type(self), self._init_kwargs, self.generator.get_state())
+        return _rebuild_env, (type(self), self._init_kwargs, self.get_rng_state())
 
     # ------------------------------------------------------------------------------------ internals
     def _set_seed(self, seed: int | None):
@@ -457,7 +494,7 @@ class DexEnv(EnvBase):
 
 def _rebuild_env(cls, kwargs: dict, generator_state: torch.Tensor) -> DexEnv:
     env = cls(**kwargs)
-    env.generator.set_state(generator_state)
+    env.set_rng_state(generator_state)
     return env
 
 

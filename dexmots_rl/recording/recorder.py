@@ -65,7 +65,8 @@ class EpisodeRecorder:
     see the module docstring.
 
     ``record(td)`` takes one frame: the TensorDict ``env.reset()`` returns, or the ``"next"`` entry of a
-    step (for a simulator: ``("sim", "joint_q")`` and optionally ``("object", "wrench")``). The wrench
+    step, which carries every body's pose as ``("sim", "body_pose")`` (for a simulator: ``("sim", "joint_q")``,
+    ``("sim", "body_pose")`` and optionally ``("object", "wrench")``, what :func:`record_simulation` writes). The wrench
     arrows start where they leave the object's bounding box and are sized by the scene
     (:func:`~dexmots_rl.recording.scene_messages.arrow_style`); ``force_scale`` (m/N) and ``torque_scale``
     (m/(N m)) set their lengths.
@@ -75,17 +76,13 @@ class EpisodeRecorder:
                  force_scale: float = FORCE_SCALE, torque_scale: float = TORQUE_SCALE,
                  world_spacing: float | None = None, task: str | None = None):
         self.path = Path(path)
+        # an env and a simulator both tell their scene, time step and dtype
         self.env, self.base = env, getattr(env, "base_env", env)
-        self.sim = getattr(self.base, "sim", self.base)
         self.num_worlds = int(self.base.batch_size[0]) if hasattr(self.base, "batch_size") else int(
-            self.sim.num_worlds)
-        self.num_bodies = int(self.sim.num_bodies)
+            self.base.num_worlds)
         # an env over a library object built its scene in a temporary folder: its asset rebuilds the MJCF
-        self.geometry = scene_geometry(self.sim.scene, asset=getattr(self.base, "object_asset", None))
-        if len(self.geometry.body_names) != self.num_bodies:
-            raise ValueError(f"{self.sim.scene.path}: the simulator poses {self.num_bodies} bodies, the scene names "
-                             f"{len(self.geometry.body_names)}")
-        self.live, self.dt = live, float(self.sim.dt)
+        self.geometry = scene_geometry(self.base.scene, asset=getattr(self.base, "object_asset", None))
+        self.live, self.dt = live, float(self.base.dt)
         self.start_time_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
         self.force_scale, self.torque_scale = force_scale, torque_scale
         self.world_spacing = world_spacing
@@ -111,10 +108,15 @@ class EpisodeRecorder:
         joint_q = td.get(("sim", "joint_q"))
         if joint_q.shape[0] != n:
             raise ValueError(f"expected a TensorDict of {n} worlds, got batch {tuple(td.batch_size)}")
+        body_pose = td.get(("sim", "body_pose"), None)
+        if body_pose is None:
+            raise KeyError("the frame has no ('sim', 'body_pose') (every body's pose [N, B, 7]): record the "
+                           "TensorDicts an env returns, or a simulator's frames as record_simulation writes them")
+        if tuple(body_pose.shape[1:]) != (len(self.geometry.body_names), 7):
+            raise ValueError(f"('sim', 'body_pose') has shape {tuple(body_pose.shape)}; the scene "
+                             f"{self.base.scene.path} has {len(self.geometry.body_names)} bodies, so [N, "
+                             f"{len(self.geometry.body_names)}, 7]")
         with torch.no_grad():
-            # an env's TensorDict carries every body's pose; a bare simulator's state is observed here
-            body_pose = td.get(("sim", "body_pose"), None)
-            body_pose = self.sim.observe(joint_q)[0] if body_pose is None else body_pose
             body_pose = body_pose.cpu().to(torch.float64).numpy()
             goal_pose, target = self._reference(td, body_pose)
         if self._offsets is None:
@@ -221,7 +223,7 @@ class EpisodeRecorder:
         vector along the joint's axis: a torque about a hinge's, a force along a slide's."""
         from ..sim import SLIDE
 
-        tree = self.base.sim.tree
+        tree = self.base.scene.tree
         j = tree.joint_names.index(self.base.joint_name)
         part_quat = body_pose[:, self.geometry.num_hand_links + j + 1, 3:]  # the part the joint moves
         axis = np.stack([quat_to_mat(q) @ tree.joint_axis[j] for q in part_quat])
@@ -324,7 +326,7 @@ class EpisodeRecorder:
             WRENCH_TOPIC: writer.register_channel(WRENCH_TOPIC, "protobuf", scene_schema),
             STEP_TOPIC: writer.register_channel(STEP_TOPIC, "json", step_schema),
         }
-        dtype = str(getattr(self.base, "dtype", None) or self.sim.dtype).replace("torch.", "")
+        dtype = str(self.base.dtype).replace("torch.", "")
         writer.add_metadata("dexmots", {
             "format": FORMAT_NAME, "version": str(FORMAT_VERSION), "task": str(self.task),
             "num_worlds": str(self.num_worlds), "num_frames": str(self.num_frames), "dt": repr(self.dt),
@@ -357,16 +359,16 @@ def record_simulation(sim, steps: int, path: str | os.PathLike, control=None, st
     params = sim.default_params() if params is None else params
     n = joint_q.shape[0]
 
-    def frame(q, wrench):
-        return TensorDict({("sim", "joint_q"): q, ("object", "wrench"): wrench}, batch_size=[n])
+    def frame(q, body_pose, wrench):
+        return TensorDict({("sim", "joint_q"): q, ("sim", "body_pose"): body_pose, ("object", "wrench"): wrench},
+                          batch_size=[n])
 
-    with EpisodeRecorder(path, sim, **recorder_kwargs) as rec:
-        rec.record(frame(joint_q, torch.zeros(n, 6, dtype=joint_q.dtype)))
-        with torch.no_grad():
-            for k in range(steps):
-                u = control(k, joint_q, joint_qd) if callable(control) else control or sim.zero_control()
-                out = sim.step(joint_q, joint_qd, u, params)
-                joint_q, joint_qd = out.joint_q, out.joint_qd
-                rec.record(frame(joint_q, out.wrench))
+    with EpisodeRecorder(path, sim, **recorder_kwargs) as rec, torch.no_grad():
+        rec.record(frame(joint_q, sim.observe(joint_q, joint_qd, params)[0], torch.zeros(n, 6, dtype=joint_q.dtype)))
+        for k in range(steps):
+            u = control(k, joint_q, joint_qd) if callable(control) else control or sim.zero_control()
+            out = sim.step(joint_q, joint_qd, u, params)
+            joint_q, joint_qd = out.joint_q, out.joint_qd
+            rec.record(frame(joint_q, out.body_pose, out.wrench))
         rec.end_episode()
     return Path(path)
