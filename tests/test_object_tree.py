@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from dexmots_rl.assets.objects import Geom, Joint, ObjectAsset, Part, load_object
+from dexmots_rl.assets.objects import Geom, Joint, ObjectAsset, Part, list_objects, load_object
 from dexmots_rl.sim import ObjectSimulator, load_object_tree
 
 
@@ -212,3 +212,92 @@ def test_dropped_object_gains_no_energy():
             peak = torch.maximum(peak, energy(q, qd))
     assert torch.isfinite(q).all()
     assert (peak - e0 < 0.01 * mass * 9.81 * 0.05).all(), (peak - e0)
+
+HOLD_SECONDS = 1.0
+MAX_CREEP = 1e-6  # rad or m over HOLD_SECONDS: a part held by its friction stays put
+
+
+def _loaded_part(name, num_worlds, loads, substeps=16):
+    """The object's part 40 % into its range, its spring off, its joint's friction 2.5 times gravity's largest
+    pull plus a load L (the part's weight x 5 cm, or its weight on a slide), and per world an internal couple
+    between the part and the base along the joint's axis of ``loads(L, friction, gravity)[w]``.
+    Returns the simulator, state, parameters and wrench."""
+    import mujoco
+
+    tree, m = load_object_tree(load_object(name))
+    sim = ObjectSimulator(tree, num_worlds, dtype=torch.float64, substeps=substeps)
+    joint = tree.joint_names[0]
+    lo, hi = (float(x) for x in tree.joint_range[0])
+    q, qd = sim.initial_state()
+    q[:, -1] = lo + 0.4 * (hi - lo)
+    d = mujoco.MjData(m)
+    d.qpos[:] = q[0].numpy()
+    mujoco.mj_forward(m, d)
+    axis = torch.tensor(d.xaxis[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"object/{joint}")])
+    weight = float(tree.mass[1]) * 9.81
+    arm = np.asarray(tree.com[1]) - np.asarray(tree.joint_anchor[0])
+    slide = tree.joint_kind[0] == 1
+    gravity = weight if slide else weight * float(np.linalg.norm(np.cross(arm, tree.joint_axis[0])))
+    load = weight * (1.0 if slide else 0.05)  # N, or N m
+    friction = 2.5 * (gravity + load)
+    params = sim.default_params()
+    params[f"{joint}/stiffness"] = torch.zeros_like(params[f"{joint}/stiffness"])
+    params[f"{joint}/friction"] = torch.full_like(params[f"{joint}/friction"], friction)
+    wrench = torch.zeros(num_worlds, tree.num_bodies, 6, dtype=torch.float64)
+    column = slice(0, 3) if slide else slice(3, 6)
+    for w, size in enumerate(loads(load, friction, gravity)):
+        wrench[w, 1, column] = size * axis
+        wrench[w, 0, column] = -size * axis
+    return sim, q, qd, params, wrench
+
+
+@pytest.mark.parametrize("name", [name for name, _ in list_objects()])
+def test_friction_holds_a_loaded_part(name):
+    """A part held off its stops by its joint's Coulomb friction against gravity and an internal load (below the
+    friction either way) does not creep, while a load above the friction moves it. Worlds: +load, -load, then
+    1.5 x the friction plus gravity's pull."""
+    sim, q, qd, params, wrench = _loaded_part(name, 3, lambda load, friction, gravity: (
+        load, -load, 1.5 * friction + gravity))
+    start = q[:, -1].clone()
+    with torch.no_grad():
+        for _ in range(round(HOLD_SECONDS / sim.dt)):
+            q, qd = sim.step(q, qd, params, wrench)
+    moved = (q[:, -1] - start).abs()
+    assert torch.isfinite(q).all()
+    assert moved[:2].max() < MAX_CREEP, f"{name}: the held part crept {moved[:2].tolist()}"
+    span = float(sim.tree.joint_range[0, 1] - sim.tree.joint_range[0, 0])
+    assert moved[2] > 0.05 * span, f"{name}: a load above the friction moved the part only {moved[2]:.2e}"
+
+
+@pytest.mark.parametrize("name", ["stapler_a", "drawer_a"])
+def test_friction_gradients_match_finite_differences(name):
+    """d(state after one step)/d(velocity, wrench, joint friction) in float64 where the joint's friction holds
+    the part (load 0.5 x its friction), breaks away (1 x: through the blend into sliding) and slides (2 x)."""
+    sim, q, qd, params, wrench = _loaded_part(name, 3, lambda load, friction, gravity: (
+        0.5 * friction, friction, 2.0 * friction), substeps=8)
+    qd[:, -1] = 0.01
+    friction = f"{sim.tree.joint_names[0]}/friction"
+    weights_q = torch.randn(3, sim.nq, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    weights_v = torch.randn(3, sim.nv, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+
+    def loss(qd_in, w_in, fric):
+        p = params.clone()
+        p[friction] = fric
+        q_out, qd_out = sim.step(q, qd_in, p, w_in)
+        return (q_out * weights_q).sum() + 0.01 * (qd_out * weights_v).sum()
+
+    inputs = [qd.clone(), wrench.clone(), params[friction].clone()]
+    for t in inputs:
+        t.requires_grad_(True)
+    loss(*inputs).backward()
+    eps = 1e-6
+    for k, t in enumerate(inputs):
+        fd = np.zeros(t.numel())
+        with torch.no_grad():
+            for i in range(t.numel()):
+                args = [x.detach().clone() for x in inputs]
+                args[k].view(-1)[i] += eps
+                plus = loss(*args).item()
+                args[k].view(-1)[i] -= 2 * eps
+                fd[i] = (plus - loss(*args).item()) / (2 * eps)
+        np.testing.assert_allclose(t.grad.reshape(-1).numpy(), fd, rtol=1e-4, atol=1e-7 + 1e-6 * np.abs(fd).max())

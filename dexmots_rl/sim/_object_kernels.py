@@ -5,7 +5,8 @@ table's contact on each body's surface samples (and the sum of each body's conta
 sim/_contact_sum_kernels.py), the tree's mass matrix and bias forces (a sum over bodies of
 J^T M J and J^T (inertial - applied) wrenches, with J each body's com/angular velocity Jacobian), the joint
 springs, dampers, Coulomb friction and range stops, and a linearly implicit solve: joint damping, springs and
-stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity).
+stops, and the table's tangential friction, enter the matrix (stable at any stiffness and slip velocity); the
+joints' Coulomb friction is the force that stops them within the step, capped (sim/_joint_friction.py).
 
 Generalized coordinates (per world): a free base's origin position (m) and orientation (w, x, y, z), then the
 parts' joint positions (rad or m); velocities: the base origin's linear velocity and the base's angular
@@ -25,6 +26,7 @@ import functools
 import warp as wp
 
 from ._contact_sum_kernels import build_sum_contacts
+from ._joint_friction import build_joint_friction
 from ._kernel_funcs import build_funcs
 from ._surface_kernels import build_surface_contact
 
@@ -102,7 +104,6 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
 
     funcs = build_funcs(dtype)
     axis_angle, limit_ramp, limit_slope = funcs.axis_angle, funcs.limit_ramp, funcs.limit_slope
-    joint_friction = funcs.joint_friction
 
     @wp.func
     def base_state(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int, v: int):
@@ -133,17 +134,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
         e[k] = dtype(1.0)
         return e
 
-    if NPV == 1:  # warp's inverse starts at 2 x 2
-
-        @wp.func
-        def solve_pp(A: matPP, b: vecP):
-            return vecP(b[0] / A[0, 0])
-
-    else:
-
-        @wp.func
-        def solve_pp(A: matPP, b: vecP):
-            return wp.inverse(A) * b
+    joint_accelerations = build_joint_friction(dtype, NP, vecP, matPP, unit_p)
 
     @wp.kernel(module="unique", enable_backward=True)
     def substep(
@@ -282,7 +273,9 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
                 M23 = M23 + wp.transpose(JR) * KJ_v + KJ_w
                 r1 = r1 - F
                 r2 = r2 - (wp.cross(c - x0, F) + T)
-        # joints: springs, dampers, friction and range stops, linearised at the predicted position
+        # joints: springs, dampers and range stops, linearised at the predicted position (friction: after the
+        # elimination)
+        friction = vecP()
         for k in range(NP):
             damp = params[w, 4 * k + 0]
             fric = params[w, 4 * k + 1]
@@ -291,12 +284,13 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             qp = qj[k] + dt * qdj[k]
             lo = m.jlower[v, k] - qp
             hi = qp - m.jupper[v, k]
-            force = -damp * qdj[k] - joint_friction(fric, qdj[k]) - spring * (qp - rest)
+            force = -damp * qdj[k] - spring * (qp - rest)
             width = m.limit_width[v, k]
             force = force + m.limit_ke[v, k] * (limit_ramp(lo, width) - limit_ramp(hi, width))
             stiff = spring + m.limit_ke[v, k] * (limit_slope(lo, width) + limit_slope(hi, width))
             r3 = r3 + force * unit_p(k)
             e = unit_p(k)
+            friction = friction + fric * e
             M33 = M33 + (m.armature[v, k] + dt * damp + dt * dt * stiff) * wp.outer(e, e)
         # block elimination: [T R P] with T = base translation, R = base rotation, P = joints
         qdd_p = vecP()
@@ -311,7 +305,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             if wp.static(NP > 0):
                 T33 = S33 - wp.transpose(S23) * S22i * S23
                 t3 = s3 - wp.transpose(S23) * (S22i * s2)
-                qdd_p = solve_pp(T33, t3)
+                qdd_p = joint_accelerations(T33, t3, qdj, friction, dt)
             a_rot = S22i * (s2 - S23 * qdd_p)
             a_lin = M11i * (r1 - M12 * a_rot - M13 * qdd_p)
             v_new = v0 + dt * a_lin
@@ -328,7 +322,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             q_out[w, 5] = rq[1]
             q_out[w, 6] = rq[2]
         else:
-            qdd_p = solve_pp(M33, r3)
+            qdd_p = joint_accelerations(M33, r3, qdj, friction, dt)
         for k in range(NP):
             v_k = qdj[k] + dt * qdd_p[k]
             qd_out[w, vo + k] = v_k
