@@ -7,7 +7,9 @@ import torch
 
 __all__ = ["FRICTION_VELOCITY", "part_torque"]
 
-FRICTION_VELOCITY = 0.05  # rad/s (or m/s): the simulator's smoothing of joint Coulomb friction
+# rad/s (or m/s): the references' smoothing of Coulomb friction (the knob's and the hand's joints in the simulator;
+# an object tree's joints hold exactly below their friction instead, sim/_joint_friction.py)
+FRICTION_VELOCITY = 0.05
 
 
 def part_torque(speed: torch.Tensor, angle: torch.Tensor, nominal) -> torch.Tensor:
