@@ -137,20 +137,23 @@ def test_gradients_match_finite_differences(name):
         q_out, qd_out = sim.step(q_in, qd_in, p, w_in)
         return (q_out * weights_q).sum() + 0.01 * (qd_out * weights_v).sum()
 
-    inputs = [qd.clone(), wrench.clone(), params[f"{tree.joint_names[0]}/damping"].clone()]
-    for t in inputs:
-        t.requires_grad_(True)
-    loss(q, *inputs).backward()
-    eps = 1e-6
+    _assert_gradients_match_central_differences(
+        lambda *args: loss(q, *args), [qd, wrench, params[f"{tree.joint_names[0]}/damping"]])
+
+
+def _assert_gradients_match_central_differences(loss, inputs, eps=1e-6):
+    """loss(*inputs)'s gradient w.r.t. every entry of every input against central differences (float64)."""
+    inputs = [t.detach().clone().requires_grad_(True) for t in inputs]
+    loss(*inputs).backward()
     for k, t in enumerate(inputs):
         fd = np.zeros(t.numel())
         with torch.no_grad():
             for i in range(t.numel()):
                 args = [x.detach().clone() for x in inputs]
                 args[k].view(-1)[i] += eps
-                plus = loss(q, *args).item()
+                plus = loss(*args).item()
                 args[k].view(-1)[i] -= 2 * eps
-                fd[i] = (plus - loss(q, *args).item()) / (2 * eps)
+                fd[i] = (plus - loss(*args).item()) / (2 * eps)
         np.testing.assert_allclose(t.grad.reshape(-1).numpy(), fd, rtol=1e-4, atol=1e-7 + 1e-6 * np.abs(fd).max())
 
 
@@ -286,18 +289,4 @@ def test_friction_gradients_match_finite_differences(name):
         q_out, qd_out = sim.step(q, qd_in, p, w_in)
         return (q_out * weights_q).sum() + 0.01 * (qd_out * weights_v).sum()
 
-    inputs = [qd.clone(), wrench.clone(), params[friction].clone()]
-    for t in inputs:
-        t.requires_grad_(True)
-    loss(*inputs).backward()
-    eps = 1e-6
-    for k, t in enumerate(inputs):
-        fd = np.zeros(t.numel())
-        with torch.no_grad():
-            for i in range(t.numel()):
-                args = [x.detach().clone() for x in inputs]
-                args[k].view(-1)[i] += eps
-                plus = loss(*args).item()
-                args[k].view(-1)[i] -= 2 * eps
-                fd[i] = (plus - loss(*args).item()) / (2 * eps)
-        np.testing.assert_allclose(t.grad.reshape(-1).numpy(), fd, rtol=1e-4, atol=1e-7 + 1e-6 * np.abs(fd).max())
+    _assert_gradients_match_central_differences(loss, [qd, wrench, params[friction]])
