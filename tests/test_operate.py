@@ -131,9 +131,9 @@ def test_scissors_open_when_the_thumb_and_middle_finger_spread():
 def test_jar_lid_turns_to_its_goal_while_the_jar_is_held():
     """The jar task can be done: the benchmark's blind jar script (found by its search) turns the lid of each
     randomised jar most of the way to its goal from the pre-grasp, and into the goal band with the jar held in
-    most worlds (benchmarks/scripted_tools.py: 62-75 % of 64 worlds), so a learner's 0 % there is a failure to
-    learn, not a task the hand cannot do."""
-    env, td = scripted_tools.scripted_rollout("jar", scripted_tools.SCRIPTS["jar"], "vi", num_envs=4, seed=0, ramp=40)
+    about half the worlds (benchmarks/scripted_tools.py: 45-63 % of 64 worlds), so a learner's 0 % there is a failure
+    to learn, not a task the hand cannot do."""
+    env, td = scripted_tools.scripted_rollout("jar", scripted_tools.SCRIPTS["jar"], "vi", num_envs=8, seed=0, ramp=40)
     base = env.base_env
     lid = td["object", "q"][:, base.joint_index]
     assert (lid > 0.5 * td["task", "goal"][:, 0]).all()
