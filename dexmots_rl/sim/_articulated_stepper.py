@@ -116,6 +116,9 @@ class ArticulatedTrajectory:
         num_points = len(sim.scene.point_radius)
         num_links = sim.scene.num_fingers * sim.scene.joints_per_finger
         points_per_link = num_points // num_links
+        # the finger contact's links per thread: on a CPU a world's all (a thread's entry costs, in the adjoint
+        # launch most of all), on a GPU one (a thread each)
+        links_per_thread = 1 if wp.get_device(sim.device).is_cuda else num_links
 
         def launches(a: StepArrays, model, hand_model, palm_model, only_touching):
             t, g = a.tensors, a.groups
@@ -144,10 +147,10 @@ class ArticulatedTrajectory:
                 if sim.palm_kernels is not None:  # the palm's push adds to the table's
                     out.append((sim.palm_kernels.palm_contact, (dim, sim.tree.num_bodies),
                                 [palm_model, variant, block[4], -1, *fr, dt, MAX_SAMPLES, *tb]))  # its own mu
-                out.append((h.finger_contact, (dim, num_links),
+                out.append((h.finger_contact, (dim, num_links // links_per_thread),
                             [hand_model, variant, block[4], state[1], *lk, *fr, gen, hand_f, hand_t, step_normal,
                              touching,
-                             only_touching, points_per_link, dt]))
+                             only_touching, points_per_link, links_per_thread, dt]))
                 out.append((k.sum_contacts, dim, [model, variant, tb[0], tb[1], hand_f, hand_t, fr[0], fr[1], fr[2],
                                                   rows(wrench, s), rows(normal, s), rows(joint_wrench, s),
                                                   step_normal, weight, *tot, rows(wrench, s + 1),

@@ -132,89 +132,93 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
         # contributed nothing, so its adjoint is zero)
         points_per_link: int,  # P, a launch argument so the loop over a link's spheres stays a loop (unrolled, the
         # kernel's body would be copied P times)
+        links_per_thread: int,  # links one thread takes in turn (CPU: all of a world's, so that a thread's entry,
+        # which zeroes the adjoint launch's locals, is paid once per world; GPU: 1, a thread per link)
         dt: dtype,  # s: the substep (the law's damping is implicit over it)
     ):
-        w, link = wp.tid()  # link: f * J + k
-        if only_touching != 0:  # the adjoint launch: a link none of whose spheres touched has a zero adjoint
-            touched = int(0)
-            for sp in range(P):
-                touched = touched + touching[w, link * P + sp]
-            if touched == 0:
-                return
-        f = link / J
-        k_link = link - f * J
-        x = link_x[w, link]
-        R = link_R[w, link]
-        # the link's velocity over its chain's joints (link_frames' origins and axes): its origin's and its
-        # angular velocity, so a sphere's is one cross product away
-        vx = vec3()
-        om = vec3()
-        for k in range(J):
-            if k <= k_link:
-                i = f * J + k
-                a = link_a[w, i]
-                vx = vx + wp.cross(a, x - link_x[w, i]) * hqd[w, i]
-                om = om + a * hqd[w, i]
+        w, group = wp.tid()  # links group * links_per_thread on, one after another
         v = variant[w]
-        # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
-        # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
-        for sp in range(points_per_link):
-            s = link * points_per_link + sp
-            rad = m.point_radius[s]
-            skip = rad <= dtype(0.0)
-            if only_touching != 0:
-                if touching[w, s] == 0:
-                    skip = True
-            if not skip:
-                p = x + R * fixed_vec3(m.point_pos, s)
-                vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
-                f_sum = vec3()  # the bodies' force on the sphere
-                hit = int(0)
-                for b in range(B):
-                    xb = body_x[w, b]
-                    # no geom of body b within the cutoff: skip its distances (their result would go unused)
-                    if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
-                        Rb = body_R[w, b]
-                        pl = wp.transpose(Rb) * (p - xb)
-                        best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                        # found without an adjoint; only the nearest geom's distance has one, and only within the
-                        # cutoff
-                        g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
-                        if g >= 0:
-                            Rg = m.geom_rot[v, b, g]
-                            dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g],
-                                               m.sdf_values, wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
-                            nb = Rg * vec3(dn[1], dn[2], dn[3])
-                            best = vec4(dn[0], nb[0], nb[1], nb[2])
-                        pen = rad - best[0]
-                        if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                            touching[w, s] = 1
-                            n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
-                            cp = p - n * rad
-                            r = cp - body_c[w, b]
-                            v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
-                            vn = wp.dot(v_rel, n)
-                            # the one contact law (kernel_funcs.normal_force): its damping implicit against the
-                            # body's mobility at the contact (the finger is far heavier)
-                            # (a moving body's model mobility times its model mass over its mass parameter)
-                            lighter = dtype(1.0)
-                            if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
-                                lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
-                            mobility = lighter * body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb,
-                                                               r, n)
-                            fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
-                            vt = v_rel - vn * n
-                            ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt
-                            fc = fn * n + ft  # on the finger
-                            f_sum = f_sum + fc
-                            hit = 1
-                            wp.atomic_add(contact_f, w, b, -fc)
-                            wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
-                            wp.atomic_add(normal_sum, w, fn)
-                if hit != 0:  # J^T f at the sphere centre: joint k's torque a_k . ((p - o_k) x f)
-                    for k in range(J):
-                        if k <= k_link:
-                            i = f * J + k
-                            wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
+        for j in range(links_per_thread):
+            link = group * links_per_thread + j  # f * J + k
+            if only_touching != 0:  # the adjoint launch: a link none of whose spheres touched has a zero adjoint
+                touched = int(0)
+                for sp in range(P):
+                    touched = touched + touching[w, link * P + sp]
+                if touched == 0:
+                    continue
+            f = link / J
+            k_link = link - f * J
+            x = link_x[w, link]
+            R = link_R[w, link]
+            # the link's velocity over its chain's joints (link_frames' origins and axes): its origin's and its
+            # angular velocity, so a sphere's is one cross product away
+            vx = vec3()
+            om = vec3()
+            for k in range(J):
+                if k <= k_link:
+                    i = f * J + k
+                    a = link_a[w, i]
+                    vx = vx + wp.cross(a, x - link_x[w, i]) * hqd[w, i]
+                    om = om + a * hqd[w, i]
+            # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
+            # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
+            for sp in range(points_per_link):
+                s = link * points_per_link + sp
+                rad = m.point_radius[s]
+                skip = rad <= dtype(0.0)
+                if only_touching != 0:
+                    if touching[w, s] == 0:
+                        skip = True
+                if not skip:
+                    p = x + R * fixed_vec3(m.point_pos, s)
+                    vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
+                    f_sum = vec3()  # the bodies' force on the sphere
+                    hit = int(0)
+                    for b in range(B):
+                        xb = body_x[w, b]
+                        # no geom of body b within the cutoff: skip its distances (their result would go unused)
+                        if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
+                            Rb = body_R[w, b]
+                            pl = wp.transpose(Rb) * (p - xb)
+                            best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
+                            # found without an adjoint; only the nearest geom's distance has one, and only within the
+                            # cutoff
+                            g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
+                            if g >= 0:
+                                Rg = m.geom_rot[v, b, g]
+                                dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g],
+                                                   m.sdf_values, wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
+                                nb = Rg * vec3(dn[1], dn[2], dn[3])
+                                best = vec4(dn[0], nb[0], nb[1], nb[2])
+                            pen = rad - best[0]
+                            if pen > dtype(-CONTACT_CUTOFF) / m.beta:
+                                touching[w, s] = 1
+                                n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                                cp = p - n * rad
+                                r = cp - body_c[w, b]
+                                v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
+                                vn = wp.dot(v_rel, n)
+                                # the one contact law (kernel_funcs.normal_force): its damping implicit against the
+                                # body's mobility at the contact (the finger is far heavier)
+                                # (a moving body's model mobility times its model mass over its mass parameter)
+                                lighter = dtype(1.0)
+                                if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
+                                    lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
+                                mobility = lighter * body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb,
+                                                                   r, n)
+                                fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
+                                vt = v_rel - vn * n
+                                ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt
+                                fc = fn * n + ft  # on the finger
+                                f_sum = f_sum + fc
+                                hit = 1
+                                wp.atomic_add(contact_f, w, b, -fc)
+                                wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
+                                wp.atomic_add(normal_sum, w, fn)
+                    if hit != 0:  # J^T f at the sphere centre: joint k's torque a_k . ((p - o_k) x f)
+                        for k in range(J):
+                            if k <= k_link:
+                                i = f * J + k
+                                wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
 
     return types.SimpleNamespace(geom_distance=geom_distance, finger_contact=finger_contact)
