@@ -1,6 +1,8 @@
 """Warp kernel of the fingers' contact with an articulated object's bodies (built into sim/_hand_kernels.py's set).
 
-``finger_contact``, a thread per world and finger link: the link's frame and its chain's joints (read from the
+``finger_contact``, a thread per world and finger link on a GPU, per world on a CPU (its links in turn: a thread's
+entry zeroes all its locals, the adjoint launch's twice over, which cost more than the work of the 7 links in
+10 that touch nothing): the link's frame and its chain's joints (read from the
 arrays ``link_frames`` wrote once per substep), then for each of the link's spheres its pose and velocity, its
 signed distance to each object body (the nearest of the body's geoms: box, sphere, capsule, cylinder, or a mesh's
 signed-distance grid), and a relaxed penalty contact with Coulomb friction (:class:`~dexmots_rl.sim.ContactParams`'
