@@ -4,7 +4,7 @@ Three kernels per substep (sim/_articulated.py runs them around the object tree'
 
 * ``link_frames``, a thread per world and finger: every link's frame (origin, rotation) and joint axis through its
   finger chain, once per substep, into arrays the two kernels below read (their adjoints flow back through them).
-* ``finger_contact``, a thread per world and finger link: the finger's contact with the object
+* ``finger_contact``, a thread per world and finger link (on a CPU, per world): the fingers' contact with the object
   (sim/_finger_contact_kernels.py).
 * ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces (a sum over links
   of J^T M J and J^T (inertial) wrenches), the motor's PD drive (implicit, smoothly saturated at its effort),
