@@ -104,9 +104,9 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         v_slip: dtype  # m/s
 
     funcs = build_funcs(dtype)
-    axis_angle, limit_ramp = funcs.axis_angle, funcs.limit_ramp
+    axis_angle, range_stop = funcs.axis_angle, funcs.range_stop
     fixed, fixed_vec3, fixed_mat33 = funcs.fixed, funcs.fixed_vec3, funcs.fixed_mat33  # model reads, no adjoint
-    joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
+    joint_friction, joint_drive, write_pose = funcs.joint_friction, funcs.joint_drive, funcs.write_pose
 
     @wp.func
     def unit_j(k: int):
@@ -211,18 +211,11 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             i = f * J + k
             qk = qf[k]
             qdk = qdf[k]
-            drive = kp[w, i] * (q_target[w, i] - qk - dt * qdk) - kd[w, i] * qdk
-            gain = dt * kd[w, i] + dt * dt * kp[w, i]
-            effort = fixed(m.effort, i)
-            if effort > dtype(0.0):
-                sat = wp.tanh(drive / effort)
-                drive = effort * sat
-                gain = gain * (dtype(1.0) - sat * sat)
+            drive, gain = joint_drive(kp[w, i], kd[w, i], q_target[w, i], qk, qdk, dt, fixed(m.effort, i))
             e = unit_j(k)
             diag = diag + (fixed(m.armature, i) + dt * fixed(m.damping, i) + gain) * wp.outer(e, e)
-            width = dtype(LIMIT_WIDTH)
-            lim = fixed(m.limit_ke, i) * (limit_ramp(fixed(m.lower, i) - qk, width)
-                                          - limit_ramp(qk - fixed(m.upper, i), width))
+            lim, _ = range_stop(fixed(m.limit_ke, i), fixed(m.lower, i) - qk, qk - fixed(m.upper, i),
+                                dtype(LIMIT_WIDTH))
             fric = joint_friction(fixed(m.friction, i), qdk)
             rhs = rhs + (tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[w, i]) * e
         rhs = rhs - bias

@@ -6,7 +6,8 @@
 its implicit damping, its friction's smoothing, and the mobilities the damping and the friction are integrated
 against),
 ``axis_angle`` (a rotation matrix, with a hand-written adjoint), ``limit_ramp`` / ``limit_slope`` (a range stop's
-C1 penalty and its slope), ``joint_friction`` (smoothed Coulomb friction), ``write_pose`` (a body's pose as 7 floats),
+C1 penalty and its slope), ``range_stop`` (a joint's range-stop force and stiffness), ``joint_friction`` (smoothed Coulomb friction), ``joint_drive`` (the motor's implicit PD drive, capped at its
+effort), ``write_pose`` (a body's pose as 7 floats),
 ``box_distance`` (signed distance and outward normal of a point to a box), ``trilinear`` (a grid cell's
 interpolant and its gradient) and ``grid_distance`` (signed distance and normal from a mesh's grid,
 sim/_mesh_sdf.py).
@@ -41,7 +42,9 @@ class KernelFuncs:
     axis_angle: object
     limit_ramp: object
     limit_slope: object
+    range_stop: object
     joint_friction: object
+    joint_drive: object
     write_pose: object
     box_distance: object
     trilinear: object
@@ -192,10 +195,33 @@ def build_funcs(float_type) -> KernelFuncs:
         return dtype(1.0)
 
     @wp.func
+    def range_stop(ke: dtype, below: dtype, above: dtype, width: dtype):
+        """A joint's range stops at ``below`` = lower - q and ``above`` = q - upper past them (each <= 0 inside the
+        range): the force (N m or N, pushing back into the range) and its stiffness -d force / dq, for an implicit
+        update that linearises the stop."""
+        force = ke * (limit_ramp(below, width) - limit_ramp(above, width))
+        stiffness = ke * (limit_slope(below, width) + limit_slope(above, width))
+        return force, stiffness
+
+    @wp.func
     def joint_friction(friction: dtype, speed: dtype):
         """A joint's Coulomb friction (N m or N) at ``speed``, smoothed over FRICTION_VELOCITY (opposes it when
         subtracted)."""
         return friction * wp.tanh(speed / dtype(FRICTION_VELOCITY))
+
+    @wp.func
+    def joint_drive(kp: dtype, kd: dtype, target: dtype, q: dtype, qd: dtype, dt: dtype, effort: dtype):
+        """The motor's PD drive towards ``target``, implicit in the substep's velocity update, and the gain it adds to
+        the joint's diagonal (dt kd + dt^2 kp). With an ``effort`` > 0 the drive saturates smoothly there,
+        effort tanh(drive / effort), and its gain is scaled by the saturation's slope: a stiff target far inside the
+        object otherwise asks for kp * error, ~10x what the motor can give."""
+        drive = kp * (target - q - dt * qd) - kd * qd
+        gain = dt * kd + dt * dt * kp
+        if effort > dtype(0.0):
+            sat = wp.tanh(drive / effort)
+            drive = effort * sat
+            gain = gain * (dtype(1.0) - sat * sat)
+        return drive, gain
 
     @wp.func
     def write_pose(out: wp.array2d(dtype=dtype), w: int, b: int, x: vec3, R: mat33):
@@ -295,6 +321,7 @@ def build_funcs(float_type) -> KernelFuncs:
     return KernelFuncs(fixed=fixed, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, softplus=softplus,
                        normal_force=normal_force, slip_norm=slip_norm, body_mobility=body_mobility,
                        tangent_mobility=tangent_mobility, surface_contact=surface_contact, axis_angle=axis_angle,
-                       limit_ramp=limit_ramp, limit_slope=limit_slope, joint_friction=joint_friction,
-                       write_pose=write_pose, box_distance=box_distance, trilinear=trilinear,
+                       limit_ramp=limit_ramp, limit_slope=limit_slope, range_stop=range_stop,
+                       joint_friction=joint_friction,
+                       joint_drive=joint_drive, write_pose=write_pose, box_distance=box_distance, trilinear=trilinear,
                        grid_distance=grid_distance)

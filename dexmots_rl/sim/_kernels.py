@@ -108,8 +108,8 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     palm_wrench = palm.palm_wrench if PALM else None
 
     funcs = build_funcs(dtype)
-    axis_angle, limit_ramp, limit_slope = funcs.axis_angle, funcs.limit_ramp, funcs.limit_slope
-    joint_friction, write_pose = funcs.joint_friction, funcs.write_pose
+    axis_angle, range_stop = funcs.axis_angle, funcs.range_stop
+    joint_friction, joint_drive, write_pose = funcs.joint_friction, funcs.joint_drive, funcs.write_pose
 
     @wp.func
     def object_frame(m: Model, q: wp.array2d(dtype=dtype), qd: wp.array2d(dtype=dtype), w: int):
@@ -211,23 +211,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
             i = f * J + k
             qk = qf[k]
             qdk = qdf[k]
-            kpk = kp[w, i]
-            kdk = kd[w, i]
-            # implicit PD drive, saturated smoothly at the motor's effort e: e tanh(drive / e), and its
-            # implicit gain scaled by the saturation's slope (a stiff target far inside the object
-            # otherwise asks for kp * error, ~10x what the motor can give)
-            drive = kpk * (q_target[w, i] - qk - dt * qdk) - kdk * qdk
-            gain = dt * kdk + dt * dt * kpk
-            effort = fixed(m.effort, i)
-            if effort > dtype(0.0):
-                sat = wp.tanh(drive / effort)
-                drive = effort * sat
-                gain = gain * (dtype(1.0) - sat * sat)
+            drive, gain = joint_drive(kp[w, i], kd[w, i], q_target[w, i], qk, qdk, dt, fixed(m.effort, i))
             diag[k, k] = fixed(m.armature, i) + dt * fixed(m.damping, i) + gain
-            width = dtype(LIMIT_WIDTH)
-            lim = fixed(m.limit_ke, i) * (
-                limit_ramp(fixed(m.lower, i) - qk, width) - limit_ramp(qk - fixed(m.upper, i), width)
-            )
+            lim, _ = range_stop(fixed(m.limit_ke, i), fixed(m.lower, i) - qk, qk - fixed(m.upper, i),
+                                dtype(LIMIT_WIDTH))
             fric = joint_friction(fixed(m.friction, i), qdk)
             rhs[k] = tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[k] - bias[k]
         if wp.static(J == 1):
@@ -305,11 +292,10 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
                 # the range's limit spring, linearised at the predicted angle like the joint spring: implicit,
                 # so it can be stiff enough that a finger cannot push the part through its stop
                 th_p = th + dt * th_d
-                width = dtype(LIMIT_WIDTH)
-                torque = torque + m.obj_limit_ke * (limit_ramp(m.obj_lower - th_p, width)
-                                                    - limit_ramp(th_p - m.obj_upper, width))
-                stiff = stiff + m.obj_limit_ke * (limit_slope(m.obj_lower - th_p, width)
-                                                  + limit_slope(th_p - m.obj_upper, width))
+                stop, stop_stiffness = range_stop(m.obj_limit_ke, m.obj_lower - th_p, th_p - m.obj_upper,
+                                                  dtype(LIMIT_WIDTH))
+                torque = torque + stop
+                stiff = stiff + stop_stiffness
             v_new = th_d + dt * torque / (m.obj_axial_inertia + dt * damp + dt * dt * stiff)
             qd[ro, o] = v_new
             q[ro, o] = q[r, o] + dt * v_new
