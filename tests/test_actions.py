@@ -156,3 +156,12 @@ def test_a_task_center_is_the_zero_action_and_keeps_the_full_range(fake_sim):
     for bad in (upper.tolist(), center.tolist()[:-1]):  # on a limit; one joint short
         with pytest.raises(ValueError, match="action center"):
             ActionMap(fake_sim, "vi", center=bad)
+
+
+def test_mean_actions_set_only_the_stiffness_half(fake_sim):
+    nu = fake_sim.nu
+    vi = ActionMap(fake_sim, "vi").mean_actions(0.5)
+    assert vi[:nu].abs().max() == 0 and bool((vi[nu:] == 0.5).all())
+    assert ActionMap(fake_sim, "position").mean_actions(0.5).abs().max() == 0  # no stiffness channel
+    with pytest.raises(ValueError, match="stiffness"):
+        ActionMap(fake_sim, "vi").mean_actions(1.5)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -130,6 +131,8 @@ def test_ahac_runs_and_records_its_horizon(tmp_path):
 # each case starts a process (seconds of CPU in imports alone): one in the fast set, the others in the slow one
 @pytest.mark.parametrize("override, field", [("task.goal=pose_pose", "goal"),
                                              pytest.param("task.action=velocity", "action", marks=pytest.mark.slow),
+                                             pytest.param("algo.init_stiffness=1.0", "init_stiffness",
+                                                          marks=pytest.mark.slow),
                                              pytest.param("task.reward.lambda_act=-1", "lambda_act",
                                                           marks=pytest.mark.slow)])
 def test_cli_rejects_bad_config_with_one_line(tmp_path, override, field):
@@ -192,3 +195,19 @@ def test_every_method_runs_torch_on_one_thread_by_default(name, monkeypatch):
     finally:
         torch.set_num_threads(before)
     assert seen == [1]
+
+
+def test_init_stiffness_starts_the_vi_policy_stiff_and_leaves_its_targets(tmp_path):
+    from tensordict import TensorDict
+
+    from dexmots_rl.algorithms.shac import build
+
+    locs = []
+    for stiffness in (0.0, 0.8):
+        env, actor, *_ = build(_cfg(tmp_path / "run", f"algo.init_stiffness={stiffness}"))
+        nu = env.base_env.actions.nu
+        with torch.no_grad():
+            locs.append(actor.module[0](TensorDict(observation=env.reset()["observation"], batch_size=[4]))["loc"])
+    shift = locs[1] - locs[0]  # the same seed gives the same weights: only the output bias differs
+    torch.testing.assert_close(shift[:, :nu], torch.zeros_like(shift[:, :nu]))
+    torch.testing.assert_close(shift[:, nu:], torch.full_like(shift[:, nu:], math.atanh(0.8)))

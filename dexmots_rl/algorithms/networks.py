@@ -61,15 +61,25 @@ def _mlp(in_features: int, out_features: int, hidden, layer_norm: bool) -> MLP:
 
 
 def make_networks(obs_dim: int, action_dim: int, hidden=(256, 128), init_log_std: float = -1.0,
-                  obs_key="observation", layer_norm: bool = True, critic_hidden=None):
+                  obs_key="observation", layer_norm: bool = True, critic_hidden=None, init_action=None):
     """``(actor, critic, norm)``: a ``ProbabilisticActor`` (TanhNormal, state-independent scale) and a
     ``ValueOperator``, both reading ``obs_key`` through the shared :class:`RunningNorm`. ``hidden`` are the
     actor's widths, and the critic's unless ``critic_hidden`` is given.
 
     ``layer_norm`` puts a LayerNorm after every hidden layer, as DiffRL's SHAC networks do: without it the
-    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, training)."""
+    claw's critic diverged (TD targets of +-6e3 for returns below 1.3e2, docs/devnotes.md, training).
+
+    ``init_action`` (``[action_dim]``, each in (-1, 1), or ``None``: 0) is the initial policy's mean action:
+    the output layer's bias starts at its ``atanh`` (e.g. a ``vi`` policy that starts stiff,
+    :meth:`~dexmots_rl.envs.actions.ActionMap.mean_actions`)."""
     norm = RunningNorm(obs_dim)
     body = _mlp(obs_dim, action_dim, hidden, layer_norm)
+    if init_action is not None:
+        init_action = torch.as_tensor(init_action, dtype=torch.float32)
+        if init_action.shape != (action_dim,) or not bool((init_action.abs() < 1).all()):
+            raise ValueError(f"init_action must be {action_dim} values in (-1, 1), got {init_action.tolist()}")
+        with torch.no_grad():
+            body[-1].bias.copy_(torch.atanh(init_action))
     # the scale parameter is a log-std (exp mapping), as in SHAC's Gaussian actor
     loc_scale = nn.Sequential(norm, body, AddStateIndependentNormalScale(action_dim, scale_lb=1e-4,
                                                                          init_value=init_log_std))

@@ -38,7 +38,7 @@ from .loop import TrainingLoop
 from .networks import make_networks
 from .rundir import RunDirectory
 
-__all__ = ["build", "load_policy", "train"]
+__all__ = ["build", "initial_action", "load_policy", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,8 @@ def build(cfg: DictConfig, rank: int = 0):
     critic_hidden = cfg.algo.get("critic_hidden")
     actor, critic, norm = make_networks(obs_dim, act_dim, tuple(cfg.algo.hidden), cfg.algo.init_log_std,
                                         layer_norm=cfg.algo.layer_norm,
-                                        critic_hidden=None if critic_hidden is None else tuple(critic_hidden))
+                                        critic_hidden=None if critic_hidden is None else tuple(critic_hidden),
+                                        init_action=initial_action(env, cfg.algo))
     loss = SHACLoss(actor_network=actor, critic_network=critic, gamma=cfg.algo.gamma, lmbda=cfg.algo.lmbda)
     loss.make_value_estimator()  # built now, so a checkpoint's state_dict finds it when resuming
     with warnings.catch_warnings():  # torchrl warns for eps < 0.5; SHAC's target critic is updated that fast
@@ -72,6 +73,12 @@ def build(cfg: DictConfig, rank: int = 0):
                                clip_share_lr=cfg.algo.get("horizon_clip_lr", 20.0))
     torch.manual_seed(cfg.seed + rank)
     return env, actor, critic, norm, loss, updater, actor_opt, critic_opt, ahac
+
+
+def initial_action(env, algo) -> torch.Tensor:
+    """The initial policy's mean action on ``env``: PD targets at their centre, ``vi`` stiffness actions at
+    ``algo.init_stiffness`` (0: the geometric middle of the stiffness range)."""
+    return getattr(env, "base_env", env).actions.mean_actions(algo.get("init_stiffness", 0.0))
 
 
 def train(cfg: DictConfig, overrides: list[str] | None = None) -> dict:

@@ -51,6 +51,7 @@ ALGO_FIELDS: dict[str, tuple[Any, Optional[dict]]] = {
     "critic_hidden": (Optional[tuple[int, ...]], _POSITIVE),
     "layer_norm": (bool, None),
     "init_log_std": (float, rule(ge=-20, le=5)),
+    "init_stiffness": (float, rule(gt=-1, lt=1)),
     "adjoint_clip": (Optional[float], rule(ge=1)),
     "horizon_min": (int, _POSITIVE),
     "horizon_max": (int, _POSITIVE),

@@ -94,6 +94,7 @@ def load_policy_source(task: str | None, run: str | None, zero_mean: bool) -> tu
     from ..algorithms.checkpoint import load_checkpoint
     from ..algorithms.networks import make_networks
     from ..algorithms.registry import policy_from_checkpoint
+    from ..algorithms.shac import initial_action
     from ..envs import make_env
 
     source = {"run": run}
@@ -129,7 +130,7 @@ def load_policy_source(task: str | None, run: str | None, zero_mean: bool) -> tu
     torch.manual_seed(cfg.seed)  # the initial networks of the run (or of a fresh one)
     actor, _, _ = make_networks(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1],
                                 tuple(algo["hidden"]), algo["init_log_std"], layer_norm=algo.get("layer_norm", True),
-                                critic_hidden=None)
+                                critic_hidden=None, init_action=initial_action(env, algo))
     source.update(policy=f"initial ({algo['name']}, seed {cfg.seed})", checkpoint=None)
     if run is not None:
         log.warning("diagnose: %s holds no checkpoint; the initial policy of its config is diagnosed", run)

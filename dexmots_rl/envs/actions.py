@@ -108,6 +108,16 @@ class ActionMap:
             return 2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0
         return (q - self.center) / torch.where(q < self.center, self.center - self.lower, self.upper - self.center)
 
+    def mean_actions(self, stiffness: float = 0.0) -> torch.Tensor:
+        """``[action_dim]`` actions holding every PD target at its centre and, for ``"vi"``, every joint's
+        stiffness action at ``stiffness`` (in [-1, 1]; other action spaces have no stiffness channel)."""
+        if not -1.0 <= stiffness <= 1.0:
+            raise ValueError(f"stiffness must be in [-1, 1], got {stiffness!r}")
+        a = torch.zeros(self.action_dim, dtype=self.lower.dtype, device=self.lower.device)
+        if self.kind == "vi":
+            a[self.nu:] = stiffness
+        return a
+
     def stiffness(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(kp, kd)`` for stiffness actions ``s`` in [-1, 1]: log-linear kp, critically damped kd."""
         u = 0.5 * (s + 1.0)
