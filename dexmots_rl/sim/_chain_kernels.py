@@ -1,28 +1,41 @@
 """Kernel functions for a finger chain's links: model-constant loads without adjoint, the angular
 Jacobian, and a link's mass-matrix and bias-force contribution with its hand-written adjoint.
 
-Built per scene structure by :func:`build_chain` from the types :func:`kernels.build_kernels` defines.
+Built per scene structure by :func:`build_chain` from the fused kernels' spec (sim/_fused_model.py) and the
+contact functions' point Jacobian (sim/_contact_kernels.py).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
-import types
+import dataclasses
 
 import warp as wp
 
+from ._contact_kernels import ContactFuncs
+from ._fused_model import FusedSpec
 from ._kernel_funcs import build_funcs
 from ._model import HINGE
 
-__all__ = ["build_chain"]
+__all__ = ["ChainFuncs", "build_chain"]
 
 
-def build_chain(t) -> types.SimpleNamespace:
-    """The link functions for the types and scene constants in ``t`` (attributes: dtype, vec3, mat33,
-    vecJ, matJ, matJ3, matJJ1, vecC, Model, Saved, J, hinges_only, point_jacobian, point_jacobian_vjp)."""
+@dataclasses.dataclass(frozen=True)
+class ChainFuncs:
+    """The link functions :func:`build_chain` builds for one scene structure (wp.func each; J: joints per finger)."""
+
+    angular_jacobian: object  # [J, 3] (1): the angular velocity (rad/s) a finger link gets per unit joint velocity
+    mass_block: object  # [J, J] (kg m^2): the mass matrix M out of a finger's summed [M | bias]
+    bias_column: object  # [J] (N m): the bias forces out of a finger's summed [M | bias]
+    joint_forces: object  # [J] (N m): the joint forces out of a (summed) packed contact result
+    link_inertia: object  # [J, J + 1]: a link's [M | bias] contribution (hand-written adjoint for hinges)
+
+
+def build_chain(t: FusedSpec, contact: ContactFuncs) -> ChainFuncs:
+    """The link functions for the types and scene structure in ``t``, with ``contact``'s point Jacobian."""
     dtype, vec3, mat33, vecJ, matJ, matJ3, matJJ1 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ, t.matJ3, t.matJJ1
     vecC = t.vecC
     Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
-    point_jacobian, point_jacobian_vjp = t.point_jacobian, t.point_jacobian_vjp
+    point_jacobian, point_jacobian_vjp = contact.point_jacobian, contact.point_jacobian_vjp
 
     funcs = build_funcs(dtype)
     fixed_vec3, fixed_mat33, fixed = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed
@@ -145,6 +158,5 @@ def build_chain(t) -> types.SimpleNamespace:
             wp.adjoint[A] += a_A
             wp.adjoint[O] += a_O
 
-    return types.SimpleNamespace(fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, fixed=fixed,
-                                 angular_jacobian=angular_jacobian, mass_block=mass_block,
-                                 bias_column=bias_column, joint_forces=joint_forces, link_inertia=link_inertia)
+    return ChainFuncs(angular_jacobian=angular_jacobian, mass_block=mass_block, bias_column=bias_column,
+                      joint_forces=joint_forces, link_inertia=link_inertia)

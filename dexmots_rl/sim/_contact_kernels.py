@@ -1,7 +1,6 @@
 """Contact kernels: the object's signed distance and the finger-sphere contact law, as warp functions.
 
-Built per scene structure by :func:`build_contact` from the types :func:`kernels.build_kernels` defines
-(the physics core stays the only place that knows warp). Two functions here have hand-written adjoints,
+Built per scene structure by :func:`build_contact` from the fused kernels' spec (sim/_fused_model.py). Two functions here have hand-written adjoints,
 checked against finite differences in tests/test_hand_adjoints.py: the convex polytope's smooth signed
 distance and the contact law. A taped step saves what they need (``Saved``), so their reverse pass is a
 few products instead of warp's replay of the function followed by its op-by-op adjoint.
@@ -9,20 +8,37 @@ few products instead of warp's replay of the function followed by its op-by-op a
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
-import types
+import dataclasses
 
 import warp as wp
 
 from ._constants import CONTACT_CUTOFF, GEOM_CONVEX, GEOM_CYLINDER, GEOM_SDF, GEOM_SPHERE, LSE_CUTOFF
+from ._fused_model import FusedSpec
 from ._kernel_funcs import build_funcs
 from ._model import HINGE
 
-__all__ = ["build_contact"]
+__all__ = ["ContactFuncs", "build_contact"]
 
 
-def build_contact(t) -> types.SimpleNamespace:
-    """The contact functions for the types and scene constants in ``t`` (attributes: dtype, vec3, vec4,
-    mat33, vecJ, matJ3, vecC, mat43, Model, Saved, J, K, shape, hinges_only, box)."""
+@dataclasses.dataclass(frozen=True)
+class ContactFuncs:
+    """The contact functions :func:`build_contact` builds for one scene structure (wp.func each; J: joints per
+    finger; (d, n) packs a signed distance in m and an outward unit normal)."""
+
+    unit_j: object  # [J]: the unit vector of one joint of a finger
+    point_jacobian: object  # [J, 3] (m/rad or 1): a point's velocity per unit velocity of each of a finger's joints
+    point_jacobian_vjp: object  # point_jacobian's adjoint into its inputs (for the hand-written adjoints)
+    object_sdf: object  # (d, n) of a point to the object, object frame (hand-written adjoint for a polytope)
+    contact_force: object  # one finger sphere's contact law: [7 + J] force (N), torque (N m), |fn| (N), joint forces
+    point_contact: object  # object_sdf then contact_force, for one finger sphere
+    sphere_near: object  # 1 when a finger sphere may reach the object, else 0 (culling, no adjoint)
+    link_near: object  # 1 when some sphere of a finger link may, else 0 (culling, no adjoint)
+    smooth_box: object  # (d, n) of a point to a box (box frame), log-sum-exp smoothed at edges
+    box_face_max: object  # a point's largest face distance (m) to a box: a lower bound of smooth_box's
+
+
+def build_contact(t: FusedSpec) -> ContactFuncs:
+    """The contact functions for the types and scene structure in ``t``."""
     dtype, vec3, vec4, mat33, vecJ, matJ3, vecC, mat43 = t.dtype, t.vec3, t.vec4, t.mat33, t.vecJ, t.matJ3, t.vecC, t.mat43
     Model, Saved, J, K, shape, HINGES_ONLY = t.Model, t.Saved, t.J, t.K, t.shape, t.hinges_only
     HINGE_OBJECT = t.hinge_object  # the object turns on a hinge (else it is a free body)
@@ -470,8 +486,7 @@ def build_contact(t) -> types.SimpleNamespace:
     def adj_link_near(m: Model, x: vec3, i: int, xo: vec3, Ro: mat33, adj_ret: int):
         return
 
-    return types.SimpleNamespace(softplus=softplus, unit_j=unit_j, point_jacobian=point_jacobian,
-                                 point_jacobian_vjp=point_jacobian_vjp,
-                                 object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
-                                 sphere_near=sphere_near, link_near=link_near, smooth_box=smooth_box,
-                                 box_face_max=box_face_max)
+    return ContactFuncs(unit_j=unit_j, point_jacobian=point_jacobian, point_jacobian_vjp=point_jacobian_vjp,
+                        object_sdf=object_sdf, contact_force=contact_force, point_contact=point_contact,
+                        sphere_near=sphere_near, link_near=link_near, smooth_box=smooth_box,
+                        box_face_max=box_face_max)

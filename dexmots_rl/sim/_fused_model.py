@@ -3,7 +3,7 @@
 
 The spec is what the fused kernels' function builders read (:func:`~._contact_kernels.build_contact`,
 :func:`~._chain_kernels.build_chain`, :func:`~._palm_kernels.build_palm`); the functions one builder needs from
-another are added to it with :func:`dataclasses.replace`.
+another are passed to it beside the spec.
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -42,15 +42,6 @@ class FusedSpec:
     hinges_only: bool  # every hand joint is revolute
     hinge_object: bool  # the object turns on a hinge (else it is a free body)
     box: bool  # the convex object is an axis-aligned box
-    # functions one builder takes from another's (None until added)
-    point_jacobian: object = None
-    point_jacobian_vjp: object = None
-    fixed_vec3: object = None
-    fixed_mat33: object = None
-    fixed: object = None
-    softplus: object = None
-    smooth_box: object = None
-    box_face_max: object = None
 
 
 def fused_spec(float_type, joints: int, planes: int, shape: int, hinges_only: bool, hinge_object: bool,

@@ -95,19 +95,14 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     contact = build_contact(spec)
     unit_j = contact.unit_j
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
-    chain = build_chain(dataclasses.replace(spec, point_jacobian=contact.point_jacobian,
-                                            point_jacobian_vjp=contact.point_jacobian_vjp))
-    fixed_vec3, fixed_mat33, fixed = chain.fixed_vec3, chain.fixed_mat33, chain.fixed
+    chain = build_chain(spec, contact)
     mass_block, bias_column, link_inertia = chain.mass_block, chain.bias_column, chain.link_inertia
     joint_forces = chain.joint_forces
-    palm = None
-    if PALM:
-        palm = build_palm(dataclasses.replace(spec, fixed_vec3=fixed_vec3, fixed_mat33=fixed_mat33, fixed=fixed,
-                                              softplus=contact.softplus, smooth_box=contact.smooth_box,
-                                              box_face_max=contact.box_face_max))
+    palm = build_palm(spec, contact) if PALM else None
     palm_wrench = palm.palm_wrench if PALM else None
 
     funcs = build_funcs(dtype)
+    fixed_vec3, fixed_mat33, fixed = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed
     axis_angle, range_stop = funcs.axis_angle, funcs.range_stop
     joint_friction, joint_drive, write_pose = funcs.joint_friction, funcs.joint_drive, funcs.write_pose
 

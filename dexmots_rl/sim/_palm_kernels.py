@@ -25,6 +25,8 @@ import dataclasses
 import warp as wp
 
 from ._constants import CONTACT_CUTOFF
+from ._contact_kernels import ContactFuncs
+from ._fused_model import FusedSpec
 from ._kernel_funcs import build_funcs
 
 __all__ = ["PalmFuncs", "build_palm"]
@@ -39,14 +41,13 @@ class PalmFuncs:
     palm_wrench: object  # the palm's whole push on the object (force, torque about its origin)
 
 
-def build_palm(t) -> PalmFuncs:
-    """The palm-contact functions for the types and scene constants in ``t`` (a :class:`~._fused_model.FusedSpec`
-    with fixed_vec3, fixed_mat33, fixed, softplus, smooth_box and box_face_max added)."""
+def build_palm(t: FusedSpec, contact: ContactFuncs) -> PalmFuncs:
+    """The palm-contact functions for the types and scene structure in ``t``, with ``contact``'s box distances."""
     dtype, vec3, vec4, mat33, Model = t.dtype, t.vec3, t.vec4, t.mat33, t.Model
     NB, NS = t.NB, t.NS
-    fixed_vec3, fixed_mat33, fixed, softplus = t.fixed_vec3, t.fixed_mat33, t.fixed, t.softplus
-    smooth_box, box_face_max = t.smooth_box, t.box_face_max
+    smooth_box, box_face_max = contact.smooth_box, contact.box_face_max
     funcs = build_funcs(dtype)
+    fixed_vec3, fixed_mat33, fixed, softplus = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed, funcs.softplus
     box_distance, normal_force, slip_norm = funcs.box_distance, funcs.normal_force, funcs.slip_norm
     body_mobility, tangent_mobility = funcs.body_mobility, funcs.tangent_mobility
 
