@@ -1,5 +1,5 @@
-"""Hand-written adjoints (``adj_polytope_sdf`` and ``adj_contact_force`` in _contact_kernels.py,
-``adj_link_inertia`` in _kernels.py) against central finite differences, in float64: the knob's signed
+"""Hand-written adjoints (``adj_polytope_sdf`` in _object_sdf_kernels.py, ``adj_contact_force`` in
+_contact_kernels.py, ``adj_link_inertia`` in _chain_kernels.py) against central finite differences, in float64: the knob's signed
 distance at face, edge and corner points, the contact law (against a hinged and a free object) and a link's
 mass-matrix and bias-force contribution with respect to every differentiable input.
 

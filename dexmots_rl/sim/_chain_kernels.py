@@ -1,8 +1,8 @@
-"""Kernel functions for a finger chain's links: model-constant loads without adjoint, the angular
-Jacobian, and a link's mass-matrix and bias-force contribution with its hand-written adjoint.
+"""Kernel functions for the knob and cube scenes' finger chains: a point's and a link's Jacobians (with the point
+Jacobian's adjoint for the hand-written adjoints), and a link's mass-matrix and bias-force contribution with its
+hand-written adjoint.
 
-Built per scene structure by :func:`build_chain` from the fused kernels' spec (sim/_fused_model.py) and the
-contact functions' point Jacobian (sim/_contact_kernels.py).
+Built per scene structure by :func:`build_chain` from the fused kernels' spec (sim/_fused_model.py).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -11,7 +11,6 @@ import dataclasses
 
 import warp as wp
 
-from ._contact_kernels import ContactFuncs
 from ._fused_model import FusedSpec
 from ._kernel_funcs import build_funcs
 from ._model import HINGE
@@ -23,6 +22,9 @@ __all__ = ["ChainFuncs", "build_chain"]
 class ChainFuncs:
     """The link functions :func:`build_chain` builds for one scene structure (wp.func each; J: joints per finger)."""
 
+    unit_j: object  # [J]: the unit vector of one joint of a finger
+    point_jacobian: object  # [J, 3] (m/rad or 1): a point's velocity per unit velocity of each of a finger's joints
+    point_jacobian_vjp: object  # point_jacobian's adjoint into its inputs (for the hand-written adjoints)
     angular_jacobian: object  # [J, 3] (1): the angular velocity (rad/s) a finger link gets per unit joint velocity
     mass_block: object  # [J, J] (kg m^2): the mass matrix M out of a finger's summed [M | bias]
     bias_column: object  # [J] (N m): the bias forces out of a finger's summed [M | bias]
@@ -30,15 +32,61 @@ class ChainFuncs:
     link_inertia: object  # [J, J + 1]: a link's [M | bias] contribution (hand-written adjoint for hinges)
 
 
-def build_chain(t: FusedSpec, contact: ContactFuncs) -> ChainFuncs:
-    """The link functions for the types and scene structure in ``t``, with ``contact``'s point Jacobian."""
+def build_chain(t: FusedSpec) -> ChainFuncs:
+    """The link functions for the types and scene structure in ``t``."""
     dtype, vec3, mat33, vecJ, matJ, matJ3, matJJ1 = t.dtype, t.vec3, t.mat33, t.vecJ, t.matJ, t.matJ3, t.matJJ1
     vecC = t.vecC
     Model, Saved, J, HINGES_ONLY = t.Model, t.Saved, t.J, t.hinges_only
-    point_jacobian, point_jacobian_vjp = contact.point_jacobian, contact.point_jacobian_vjp
 
     funcs = build_funcs(dtype)
     fixed_vec3, fixed_mat33, fixed = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed
+
+    @wp.func
+    def unit_j(j: int):
+        e = vecJ()
+        e[j] = dtype(1.0)
+        return e
+
+    @wp.func
+    def jac_col(jt: wp.int32, a: vec3, o: vec3, p: vec3):
+        # linear velocity of point p per unit joint velocity
+        if wp.static(HINGES_ONLY):
+            return wp.cross(a, p - o)
+        if jt == HINGE:
+            return wp.cross(a, p - o)
+        return a
+
+    @wp.func
+    def point_jacobian(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3, O: matJ3, p: vec3):
+        """Row j: velocity of point p per unit velocity of joint j (zero rows for joints not yet set)."""
+        Jv = matJ3()
+        for j in range(J):
+            v = jac_col(jtype[base + j], A[j], O[j], p)
+            for c in range(3):
+                Jv[j, c] = v[c]
+        return Jv
+
+    @wp.func
+    def point_jacobian_vjp(jtype: wp.array(dtype=wp.int32), base: int, A: matJ3, O: matJ3, p: vec3, a_Jv: matJ3):
+        """Adjoints of (A, O, p) from the adjoint of point_jacobian(jtype, base, A, O, p), for the
+        hand-written adjoints: row j is A_j x (p - O_j) for a hinge, A_j for a slider."""
+        a_A = matJ3()
+        a_O = matJ3()
+        a_p = vec3()
+        for j in range(J):
+            a_row = vec3(a_Jv[j, 0], a_Jv[j, 1], a_Jv[j, 2])
+            is_hinge = True
+            if wp.static(not HINGES_ONLY):
+                is_hinge = jtype[base + j] == HINGE
+            a_axis = a_row
+            if is_hinge:
+                a_axis = wp.cross(vec3(p[0] - O[j, 0], p[1] - O[j, 1], p[2] - O[j, 2]), a_row)
+                a_point = wp.cross(a_row, vec3(A[j, 0], A[j, 1], A[j, 2]))
+                a_p = a_p + a_point
+                a_O = a_O - wp.outer(unit_j(j), a_point)
+            a_A = a_A + wp.outer(unit_j(j), a_axis)
+        return a_A, a_O, a_p
+
 
     @wp.func
     def jac_ang(jt: wp.int32, a: vec3):
@@ -158,5 +206,6 @@ def build_chain(t: FusedSpec, contact: ContactFuncs) -> ChainFuncs:
             wp.adjoint[A] += a_A
             wp.adjoint[O] += a_O
 
-    return ChainFuncs(angular_jacobian=angular_jacobian, mass_block=mass_block, bias_column=bias_column,
+    return ChainFuncs(unit_j=unit_j, point_jacobian=point_jacobian, point_jacobian_vjp=point_jacobian_vjp,
+                      angular_jacobian=angular_jacobian, mass_block=mass_block, bias_column=bias_column,
                       joint_forces=joint_forces, link_inertia=link_inertia)

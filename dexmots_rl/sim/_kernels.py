@@ -10,8 +10,9 @@ wrong). Everything is generic in the float type so gradient checks can run in fl
 The reverse pass is warp's generated adjoint, made cheap in three ways (docs/devnotes.md): a taped
 step saves each function call's result (``Saved``) and ``wp.func_replay`` loads it instead of re-running
 the call at every nesting level; model constants are read through loads with an empty adjoint, so the
-compiler drops the adjoint terms that would only flow into the model; the contact functions
-(_contact_kernels.py) and a link's inertia block (_chain_kernels.py) have hand-written adjoints.
+compiler drops the adjoint terms that would only flow into the model; the convex object's distance
+(_object_sdf_kernels.py), the contact law (_contact_kernels.py) and a link's inertia block (_chain_kernels.py) have
+hand-written adjoints.
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -29,6 +30,7 @@ from ._constants import LIMIT_WIDTH
 from ._fused_model import fused_spec
 from ._kernel_funcs import build_funcs
 from ._model import HINGE, OBJECT_HINGE, OBJECT_PARAMS
+from ._object_sdf_kernels import build_object_sdf
 
 __all__ = ["build_kernels"]
 
@@ -92,13 +94,13 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
     dtype, vec3, mat33, quat, Model, Saved = spec.dtype, spec.vec3, spec.mat33, spec.quat, spec.Model, spec.Saved
     vecJ, matJ, matJ3, vec7, vecC, matJJ1 = spec.vecJ, spec.matJ, spec.matJ3, spec.vec7, spec.vecC, spec.matJJ1
 
-    contact = build_contact(spec)
-    unit_j = contact.unit_j
+    sdf = build_object_sdf(spec)
+    chain = build_chain(spec)
+    contact = build_contact(spec, sdf, chain)
     point_contact, sphere_near, link_near = contact.point_contact, contact.sphere_near, contact.link_near
-    chain = build_chain(spec, contact)
-    mass_block, bias_column, link_inertia = chain.mass_block, chain.bias_column, chain.link_inertia
+    unit_j, mass_block, bias_column, link_inertia = chain.unit_j, chain.mass_block, chain.bias_column, chain.link_inertia
     joint_forces = chain.joint_forces
-    palm = build_palm(spec, contact) if PALM else None
+    palm = build_palm(spec, sdf) if PALM else None
     palm_wrench = palm.palm_wrench if PALM else None
 
     funcs = build_funcs(dtype)
@@ -338,6 +340,6 @@ def build_kernels(float_type, num_fingers: int, joints: int, points: int, planes
         xo, Ro, vo, wo = object_frame(m, q, qd, w)
         write_pose(body_pose, w, F * J, xo, Ro)
 
-    return Kernels(Model=Model, Saved=Saved, substep=substep, observe=observe, object_sdf=contact.object_sdf,
+    return Kernels(Model=Model, Saved=Saved, substep=substep, observe=observe, object_sdf=sdf.object_sdf,
                    contact_force=contact.contact_force, link_inertia=link_inertia, palm=palm, vec3=vec3, vec4=spec.vec4,
                    mat33=mat33, vec7=vec7, vecC=vecC, vecJ=vecJ, matJ3=matJ3, mat43=spec.mat43, matJJ1=matJJ1)

@@ -25,9 +25,9 @@ import dataclasses
 import warp as wp
 
 from ._constants import CONTACT_CUTOFF
-from ._contact_kernels import ContactFuncs
 from ._fused_model import FusedSpec
 from ._kernel_funcs import build_funcs
+from ._object_sdf_kernels import ObjectSdfFuncs
 
 __all__ = ["PalmFuncs", "build_palm"]
 
@@ -41,11 +41,11 @@ class PalmFuncs:
     palm_wrench: object  # the palm's whole push on the object (force, torque about its origin)
 
 
-def build_palm(t: FusedSpec, contact: ContactFuncs) -> PalmFuncs:
-    """The palm-contact functions for the types and scene structure in ``t``, with ``contact``'s box distances."""
+def build_palm(t: FusedSpec, sdf: ObjectSdfFuncs) -> PalmFuncs:
+    """The palm-contact functions for the types and scene structure in ``t``, with ``sdf``'s box distances."""
     dtype, vec3, vec4, mat33, Model = t.dtype, t.vec3, t.vec4, t.mat33, t.Model
     NB, NS = t.NB, t.NS
-    smooth_box, box_face_max = contact.smooth_box, contact.box_face_max
+    smooth_box, box_face_max = sdf.smooth_box, sdf.box_face_max
     funcs = build_funcs(dtype)
     fixed_vec3, fixed_mat33, fixed, softplus = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed, funcs.softplus
     box_distance, normal_force, slip_norm = funcs.box_distance, funcs.normal_force, funcs.slip_norm

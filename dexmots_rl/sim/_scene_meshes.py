@@ -64,11 +64,6 @@ class SceneGeometry:
     ghost_vertices: np.ndarray
     ghost_faces: np.ndarray
 
-    @property
-    def object_bodies(self) -> list[int]:
-        """Indices (into ``body_names``) of the object's bodies, the base first."""
-        return list(range(self.num_hand_links, len(self.body_names)))
-
     def world_points(self, body_pose: np.ndarray, roles=None) -> np.ndarray:
         """Every vertex [K, 3] of the parts (of ``roles``, default all but the table) placed at ``body_pose``
         [B, 7] (one world)."""
@@ -76,13 +71,6 @@ class SceneGeometry:
         pts = [transform(p.vertices, body_pose[p.body]) if p.body != STATIC else p.vertices
                for p in self.parts if p.role in roles and len(p.vertices)]
         return np.concatenate(pts) if pts else np.zeros((0, 3))
-
-    def object_size(self) -> tuple[np.ndarray, float]:
-        """The goal ghost's bounding-box centre (base frame) and half diagonal (m): the object's size."""
-        if not len(self.ghost_vertices):
-            return np.zeros(3), 0.0
-        lo, hi = self.ghost_vertices.min(0), self.ghost_vertices.max(0)
-        return 0.5 * (lo + hi), float(0.5 * np.linalg.norm(hi - lo))
 
 
 def quat_to_mat(q) -> np.ndarray:
