@@ -35,7 +35,6 @@ from ._object_sim import ObjectSimulator, TableContact
 
 __all__ = ["ArticulatedScene", "ArticulatedSimulator", "ArticulatedStepOutput", "ObjectGeoms", "object_geoms"]
 
-LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops, as in the knob and cube scenes
 
 
 def _inverse_masses(trees) -> tuple[np.ndarray, np.ndarray]:
@@ -130,11 +129,7 @@ class ArticulatedSimulator(HandSimulator):
         if len(pos) == 0:
             return None, None
         k = build_palm_object_kernels(self.kernels.dtype, self.tree.num_bodies, len(pos))
-        wdt, c = self.kernels.dtype, self.table
-
-        def arr(x, dtype):
-            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
-
+        wdt, c, arr = self.kernels.dtype, self.table, self._array
         m = k.Model()
         m.box_pos, m.box_rot, m.box_half = arr(pos, k.vec3), arr(rot, k.mat33), arr(half, k.vec3)
         m.sample_pos = arr(np.stack([v.sample_pos for v in self.variants]), k.vec3)
@@ -145,26 +140,14 @@ class ArticulatedSimulator(HandSimulator):
         return k, m
 
     def _make_hand_model(self):
-        s, k, c, variants = self.scene, self.hand_kernels, self.contact, self.scene.variant_geoms
+        k, variants, arr = self.hand_kernels, self.scene.variant_geoms, self._array
         wdt = k.dtype
 
         def geoms(field):  # [V, B, G]: every variant's geoms (one width: object_variants.pad_geoms)
             return np.stack([getattr(g, field) for g in variants])
 
-        def arr(x, dtype):
-            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
-
         m = k.Model()
-        m.base_pos, m.base_rot = arr(s.finger_base_pos, k.vec3), arr(s.finger_base_rot, k.mat33)
-        m.off_pos, m.off_rot = arr(s.link_offset_pos, k.vec3), arr(s.link_offset_rot, k.mat33)
-        m.axis = arr(s.joint_axis, k.vec3)
-        m.mass, m.com, m.inertia = arr(s.link_mass, wdt), arr(s.link_com, k.vec3), arr(s.link_inertia, k.mat33)
-        m.armature, m.damping, m.friction = arr(s.dof_armature, wdt), arr(s.dof_damping, wdt), arr(s.dof_friction, wdt)
-        m.lower, m.upper = arr(s.dof_lower, wdt), arr(s.dof_upper, wdt)
-        m.limit_ke = arr(s.dof_inertia0 * LIMIT_FREQUENCY**2 * s.dof_limited, wdt)
-        m.effort = arr(s.actuator_effort, wdt)
-        m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
-        m.tip_pos = arr(s.tip_pos, k.vec3)
+        self._fill_finger_chains(m, k, wdt)  # the fingers' friction coefficient is the parameter "hand/friction"
         m.geom_kind = wp.array(geoms("kind"), dtype=wp.int32, device=self.device)
         m.geom_pos, m.geom_rot = arr(geoms("pos"), k.vec3), arr(geoms("rot"), k.mat33)
         m.geom_size = arr(geoms("size"), k.vec3)
@@ -178,9 +161,6 @@ class ArticulatedSimulator(HandSimulator):
         m.body_bound = arr(np.stack([g.bound() for g in variants]), wdt)
         inv_mass, inv_inertia = _inverse_masses(self.variants)
         m.body_inv_mass, m.body_inv_inertia = arr(inv_mass, wdt), arr(inv_inertia, k.mat33)
-        m.gravity = k.vec3(*s.gravity)
-        m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
-        m.v_slip = wdt(c.slip_velocity)  # the friction coefficient is the parameter "hand/friction"
         m.body_mass = arr(np.stack([t.mass for t in self.variants]), wdt)
         m.first_moving, m.mass_col = self.tree.moving_bodies.start, 4 * self.tree.num_parts
         m.mu_col = self.scene.param_names.index(HAND_FRICTION_PARAM)

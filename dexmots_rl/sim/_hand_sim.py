@@ -15,17 +15,28 @@ import warnings
 import weakref
 from typing import Protocol
 
+import numpy as np
 import torch
 from tensordict import TensorDict
 
-__all__ = ["Control", "StepOutput", "TapeTrajectory", "HandSimulator", "SimStep", "check_device", "BELOW_TABLE",
-           "PAST_STOP_HINGE", "PAST_STOP_SLIDE"]
+__all__ = ["Control", "StepOutput", "TapeTrajectory", "HandSimulator", "SimStep", "check_device", "warp_float",
+           "BELOW_TABLE", "PAST_STOP_HINGE", "PAST_STOP_SLIDE"]
 
 # A world whose object is this far inside the table or past a stop has left the physics (it tunnelled, or the stop
 # gave way): the contact and the stops hold a body within millimetres of them (a stop ~0.01 rad under 1 N m)
 BELOW_TABLE = 0.05  # m: a table-contact sample of the object this far below the table's top
 PAST_STOP_HINGE = 0.5  # rad: an object hinge this far beyond its range
 PAST_STOP_SLIDE = 0.05  # m: an object slide this far beyond its range
+LIMIT_FREQUENCY = 60.0  # rad/s: the hand's range stops are as stiff as an oscillator of this frequency on the joint
+
+
+def warp_float(dtype: torch.dtype):
+    """The warp float type of a torch float type (float32 or float64)."""
+    import warp as wp
+
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+    return wp.float32 if dtype == torch.float32 else wp.float64
 
 
 @dataclasses.dataclass
@@ -204,6 +215,31 @@ class HandSimulator:
 
     def check_params(self, params) -> None:
         """Raise ValueError naming a parameter the kernels cannot take (default: nothing to check)."""
+
+    # ------------------------------------------------------------------------------------------ model
+    def _array(self, x, dtype):
+        """A model array of ``x`` (read in float64) in the warp ``dtype``, on the device."""
+        import warp as wp
+
+        return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
+
+    def _fill_finger_chains(self, m, k, wdt) -> None:
+        """Set the hand's fields of model struct ``m`` that the fused and the split kernels share: the finger chains
+        (frames, joints, inertias, drives, range stops), their contact spheres and tips, gravity and the fingers'
+        contact law (``k``: the kernels' namespace, for its vec3 and mat33; ``wdt``: the float type)."""
+        s, c, arr = self.scene, self.contact, self._array
+        m.base_pos, m.base_rot = arr(s.finger_base_pos, k.vec3), arr(s.finger_base_rot, k.mat33)
+        m.off_pos, m.off_rot = arr(s.link_offset_pos, k.vec3), arr(s.link_offset_rot, k.mat33)
+        m.axis = arr(s.joint_axis, k.vec3)
+        m.mass, m.com, m.inertia = arr(s.link_mass, wdt), arr(s.link_com, k.vec3), arr(s.link_inertia, k.mat33)
+        m.armature, m.damping, m.friction = arr(s.dof_armature, wdt), arr(s.dof_damping, wdt), arr(s.dof_friction, wdt)
+        m.lower, m.upper = arr(s.dof_lower, wdt), arr(s.dof_upper, wdt)
+        m.limit_ke = arr(s.dof_inertia0 * LIMIT_FREQUENCY**2 * s.dof_limited, wdt)
+        m.effort = arr(s.actuator_effort, wdt)
+        m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
+        m.tip_pos = arr(s.tip_pos, k.vec3)
+        m.gravity = k.vec3(*s.gravity)
+        m.ke, m.kd, m.beta, m.v_slip = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness), wdt(c.slip_velocity)
 
     # ------------------------------------------------------------------------------------------ state
     def _zeros(self, *shape):

@@ -28,14 +28,12 @@ import warp as wp
 from tensordict import TensorDict
 
 from ._mjcf_shapes import AssetError
-from ._constants import LIMIT_WIDTH, TABLE_FRICTION
+from ._constants import LIMIT_WIDTH, OBJECT_STOP_FREQUENCY, TABLE_FRICTION
 from ._object_kernels import build_object_kernels
 from ._object_model import MAX_SAMPLES, ObjectTree, object_tree
-from ._hand_sim import check_device
+from ._hand_sim import check_device, warp_float
 
 __all__ = ["TableContact", "ObjectSimulator", "ObjectStep", "load_object_tree"]
-
-LIMIT_FREQUENCY = 1000.0  # rad/s: a range stop is as stiff as an oscillator of this frequency on the joint's inertia
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,10 +67,6 @@ def load_object_tree(asset, *, timestep: float = 1.0 / 960.0) -> tuple[ObjectTre
     return object_tree(m, d), m
 
 
-def _wp_dtype(dtype):
-    return {torch.float32: wp.float32, torch.float64: wp.float64}[dtype]
-
-
 class ObjectSimulator:
     """Worlds of one object tree (see the module docstring). State: ``q`` [N, nq], ``qd`` [N, nv]
     (:class:`~dexmots_rl.sim._object_model.ObjectTree` documents the layout); parameters: the named
@@ -90,7 +84,7 @@ class ObjectSimulator:
         self.torch_device = check_device(device)
         self.device = wp.device_from_torch(self.torch_device)
         self.table = table or TableContact()
-        self.kernels = build_object_kernels(_wp_dtype(dtype), tree.num_bodies, tree.free,
+        self.kernels = build_object_kernels(warp_float(dtype), tree.num_bodies, tree.free,
                                             tree.table_height is not None)
         self.model = self._make_model(np.asarray(gravity, dtype=np.float64))
         # [N] int32: the variant each world simulates (see the module docstring)
@@ -111,7 +105,7 @@ class ObjectSimulator:
 
     def _make_model(self, gravity):
         t, k = self.tree, self.kernels
-        wdt = _wp_dtype(self.dtype)
+        wdt = warp_float(self.dtype)
 
         def arr(x, dtype):
             return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
@@ -129,8 +123,8 @@ class ObjectSimulator:
         m.janchor = arr(per_variant(lambda v: pad(v.joint_anchor, (1, 3))), k.vec3)
         rng = per_variant(lambda v: pad(v.joint_range, (1, 2)))
         m.jlower, m.jupper = arr(rng[..., 0], wdt), arr(rng[..., 1], wdt)
-        # each stop as stiff as a LIMIT_FREQUENCY oscillator on the joint's own inertia (at the initial pose)
-        m.limit_ke = arr(per_variant(lambda v: pad(v.joint_inertia, (1,))) * LIMIT_FREQUENCY**2, wdt)
+        # each stop as stiff as an OBJECT_STOP_FREQUENCY oscillator on the joint's own inertia (at the initial pose)
+        m.limit_ke = arr(per_variant(lambda v: pad(v.joint_inertia, (1,))) * OBJECT_STOP_FREQUENCY**2, wdt)
         # a stop stiffens over LIMIT_WIDTH, or over 5 % of a short range (a pump's 12 mm stroke)
         span = rng[..., 1] - rng[..., 0] if t.num_parts else np.ones((len(self.variants), 1))
         m.limit_width = arr(np.minimum(LIMIT_WIDTH, 0.05 * span), wdt)
@@ -190,7 +184,7 @@ class ObjectSimulator:
         wext = wp.from_torch(ext.contiguous(), requires_grad=grad)
         variant = wp.from_torch(self.variant.clone())  # this step's (a later change must not reach its replay)
         nb, nparts = self.tree.num_bodies, max(self.tree.num_parts, 1)
-        wdt = _wp_dtype(self.dtype)
+        wdt = warp_float(self.dtype)
         states = [(wq, wqd)]
 
         def new(dtype, count):

@@ -13,28 +13,15 @@ import numpy as np
 import torch
 import warp as wp
 
-from ._constants import GEOM_CONVEX
+from ._constants import GEOM_CONVEX, OBJECT_STOP_FREQUENCY
 from ._kernels import build_kernels
 from ._mjcf_shapes import MAX_PLANES
 from ._energy import scene_object_energy
 from ._model import HINGE, OBJECT_FREE, OBJECT_HINGE, ContactParams, SceneModel
-from ._hand_sim import PAST_STOP_HINGE, HandSimulator
+from ._hand_sim import PAST_STOP_HINGE, HandSimulator, warp_float
 from ._stepper import Trajectory, launch_stream
 
 __all__ = ["Simulator"]
-
-# the object's range stop: implicit (stable at any stiffness), k = axial inertia x (1000 rad/s)^2; the
-# stapler's arm (3.6e-4 kg m^2) gets 360 N m/rad and goes ~0.01 rad past its stop under 1 N m
-OBJECT_LIMIT_FREQUENCY = 1000.0  # rad/s
-LIMIT_FREQUENCY = 60.0  # rad/s: joint-limit springs are as stiff as a 60 rad/s oscillator on the joint's inertia
-
-
-def _wp_dtype(dtype: torch.dtype):
-    if dtype == torch.float32:
-        return wp.float32
-    if dtype == torch.float64:
-        return wp.float64
-    raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
 
 
 def _box_of_planes(planes) -> tuple[np.ndarray, np.ndarray] | None:
@@ -99,7 +86,7 @@ class Simulator(HandSimulator):
         # box_object; tasks read it too, e.g. how far a turned cube reaches below its centre), else None
         self.object_box = _box_of_planes(scene.object_planes) if scene.object_shape == GEOM_CONVEX else None
         self.kernels = build_kernels(
-            _wp_dtype(dtype),
+            warp_float(dtype),
             scene.num_fingers,
             scene.joints_per_finger,
             scene.points_per_link,
@@ -120,28 +107,15 @@ class Simulator(HandSimulator):
 
     # ----------------------------------------------------------------------------------------- set-up
     def _make_model(self):
-        s, k, c = self.scene, self.kernels, self.contact
-        wdt = _wp_dtype(self.dtype)
-
-        def arr(x, dtype):
-            return wp.array(np.asarray(x, dtype=np.float64), dtype=dtype, device=self.device)
-
-        limit_ke = s.dof_inertia0 * LIMIT_FREQUENCY**2 * s.dof_limited
+        s, k, c, arr = self.scene, self.kernels, self.contact, self._array
+        wdt = warp_float(self.dtype)
         m = k.Model()
-        m.base_pos, m.base_rot = arr(s.finger_base_pos, k.vec3), arr(s.finger_base_rot, k.mat33)
-        m.off_pos, m.off_rot = arr(s.link_offset_pos, k.vec3), arr(s.link_offset_rot, k.mat33)
-        m.axis = arr(s.joint_axis, k.vec3)
+        self._fill_finger_chains(m, k, wdt)
         m.jtype = wp.array(s.joint_type.astype(np.int32), dtype=wp.int32, device=self.device)
-        m.mass, m.com, m.inertia = arr(s.link_mass, wdt), arr(s.link_com, k.vec3), arr(s.link_inertia, k.mat33)
-        m.armature, m.damping, m.friction = arr(s.dof_armature, wdt), arr(s.dof_damping, wdt), arr(s.dof_friction, wdt)
-        m.lower, m.upper, m.limit_ke = arr(s.dof_lower, wdt), arr(s.dof_upper, wdt), arr(limit_ke, wdt)
-        m.effort = arr(s.actuator_effort, wdt)
-        m.point_pos, m.point_radius = arr(s.point_pos, k.vec3), arr(s.point_radius, wdt)
         # per link: how far its contact spheres reach from the link origin (kernels' link_near test)
         pts = np.asarray(s.point_pos, dtype=np.float64).reshape(s.num_fingers * s.joints_per_finger, -1, 3)
         rad = np.asarray(s.point_radius, dtype=np.float64).reshape(pts.shape[:2])
         m.link_reach = arr(np.where(rad > 0, np.linalg.norm(pts, axis=-1) + rad, 0.0).max(-1), wdt)
-        m.tip_pos = arr(s.tip_pos, k.vec3)
         m.obj_base_pos, m.obj_base_rot = k.vec3(*s.object_base_pos), k.mat33(*s.object_base_rot.ravel())
         m.obj_axis, m.obj_mass = k.vec3(*s.object_axis), wdt(s.object_mass)
         m.obj_com, m.obj_inertia = k.vec3(*s.object_com), k.mat33(*s.object_inertia.ravel())
@@ -156,7 +130,7 @@ class Simulator(HandSimulator):
         m.obj_inv_inertia = k.mat33(*inv_inertia.ravel())
         if s.object_limited:
             m.obj_lower, m.obj_upper = wdt(s.object_range[0]), wdt(s.object_range[1])
-            m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_LIMIT_FREQUENCY**2)
+            m.obj_limit_ke = wdt(float(m.obj_axial_inertia) * OBJECT_STOP_FREQUENCY**2)
         planes = s.object_planes if len(s.object_planes) else np.zeros((1, 4))
         m.planes = arr(planes, k.vec4)
         if self.object_box is not None:
@@ -164,9 +138,7 @@ class Simulator(HandSimulator):
         m.shape_size = k.vec3(*s.object_shape_size, 0.0)
         m.sdf = wp.array(np.asarray(s.object_sdf, dtype=np.float64), dtype=wdt, device=self.device)
         m.sdf_origin, m.sdf_cell = k.vec3(*s.object_sdf_origin), wdt(s.object_sdf_cell)
-        m.gravity = k.vec3(*s.gravity)
-        m.ke, m.kd, m.beta = wdt(c.stiffness), wdt(c.damping), wdt(c.sharpness)
-        m.mu, m.v_slip, m.smooth = wdt(c.friction), wdt(c.slip_velocity), wdt(c.surface_smoothing)
+        m.mu, m.smooth = wdt(c.friction), wdt(c.surface_smoothing)
         if k.palm is not None:
             m.palm_pos, m.palm_rot = arr(s.palm_box_pos, k.vec3), arr(s.palm_box_rot, k.mat33)
             m.palm_half = arr(s.palm_box_half, k.vec3)
