@@ -12,7 +12,7 @@ torque about its com) with atomic adds, so contacts of one world sum in any orde
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
 
-import types
+import dataclasses
 
 import warp as wp
 
@@ -20,12 +20,12 @@ from ._constants import (CONTACT_CUTOFF, GEOM_BOX, GEOM_CAPSULE, GEOM_CYLINDER, 
                          GEOM_SPHERE, SDF_PAD)
 from ._kernel_funcs import build_funcs
 
-__all__ = ["build_finger_contact"]
+__all__ = ["FingerContactFuncs", "build_finger_contact"]
 
 GEOM_SKIP_MARGIN = 1.0e-5  # m: a geom is skipped only when its bound lies this much beyond the nearest so far
 
 
-def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, geoms: int) -> types.SimpleNamespace:
+def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, geoms: int) -> "FingerContactFuncs":
     """``geom_distance`` (a point's signed distance to a geom) and the ``finger_contact`` kernel, for the hand
     model struct ``Model`` (sim/_hand_kernels.py), chains of ``joints`` hinges with ``points`` spheres per link,
     against an object of ``bodies`` bodies with at most ``geoms`` geoms each."""
@@ -223,4 +223,12 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
                                 i = f * J + k
                                 wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
 
-    return types.SimpleNamespace(geom_distance=geom_distance, finger_contact=finger_contact)
+    return FingerContactFuncs(geom_distance=geom_distance, finger_contact=finger_contact)
+
+
+@dataclasses.dataclass(frozen=True)
+class FingerContactFuncs:
+    """What :func:`build_finger_contact` builds for one hand and object structure."""
+
+    geom_distance: object  # wp.func (m): a point's signed distance to one geom of a body (probe kernels)
+    finger_contact: object  # wp.kernel: every finger sphere's contact force into joint torques and body wrenches
