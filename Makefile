@@ -1,6 +1,7 @@
 # Two commands on a fresh machine with Python 3.11 + pip:
 #   make run    set up .venv and run the main job
-#   make test   set up .venv and run the test suite's fast set (the `slow` marker left out)
+#   make test   set up .venv and run the test suite's fast set (the `slow` marker left out), one pytest-xdist
+#               worker per core; tests/conftest.py groups the tests so that one worker builds each scene
 #   make test-all   the whole suite, as CI runs it (make test, then make test-slow)
 # Warp kernels compile once per scene and precision (docs/results.md, compile times) and are cached in
 # ~/.cache/warp (or $WARP_CACHE_PATH), which survives fresh clones on the same machine.
@@ -25,10 +26,10 @@ run: setup
 	$(VENV)/bin/dexmots-train
 
 test: setup
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" -n auto --dist loadgroup
 
 test-slow: setup
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m slow -n auto --dist loadgroup
 
 test-all: test test-slow
 

@@ -13,11 +13,45 @@ tests build the number of worlds they need from the scenes below, which are buil
 
 from __future__ import annotations
 
+import os
+
 import pytest
 import torch
 
+from dexmots_rl.envs import TASKS
 from dexmots_rl.sim import Simulator, load_scene
 from simutil import CHAIN3D, CLAW
+
+
+def _worker_group(item, task_of_module: dict[str, str]) -> str:
+    """The task whose scene a test builds (a registered task's name, or the module defining its env, among the
+    test's parameters), else the test's file: a task's tests share its kernels, a file's its fixtures."""
+    for value in getattr(getattr(item, "callspec", None), "params", {}).values():
+        if isinstance(value, str) and (value in TASKS or value in task_of_module):
+            return "task " + task_of_module.get(value, value)
+    return item.nodeid.split("::")[0]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist (``--dist loadgroup``), one worker runs each group: a task's tests in every file, so
+    two workers never compile one scene's kernels at once, and the long task checks spread over the workers."""
+    if not config.pluginmanager.hasplugin("xdist"):
+        return
+    modules = [entry.env_class.__module__ for entry in TASKS.values()]
+    task_of_module = {entry.env_class.__module__: name for name, entry in TASKS.items()
+                      if modules.count(entry.env_class.__module__) == 1}
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group(_worker_group(item, task_of_module)))
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (``make test`` runs one worker per core) each worker takes its share of the cores for
+    the simulator's world blocks and torch, so the workers don't wait on each other's threads."""
+    workers = getattr(config, "workerinput", {}).get("workercount")
+    if workers:
+        share = max(1, len(os.sched_getaffinity(0)) // workers)
+        os.environ.setdefault("DEXMOTS_CPU_THREADS", str(share))
+        torch.set_num_threads(share)
 
 
 @pytest.fixture(scope="session")

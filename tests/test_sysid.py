@@ -99,6 +99,7 @@ def test_articulated_parameter_gradients_match_central_differences():
     np.testing.assert_allclose(xg.grad.numpy(), fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
+@pytest.mark.slow  # the tool scene's float64 build
 def test_replay_loss_gradient_wrt_masses_and_contact_friction_matches_central_differences():
     """The replay loss's gradient w.r.t. the log of the spray bottle's masses (its base's and its trigger's) and of
     the contact friction coefficients (the fingers' on it, the table's under it), in float64, while the hand
