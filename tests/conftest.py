@@ -52,6 +52,31 @@ def pytest_configure(config):
         share = max(1, len(os.sched_getaffinity(0)) // workers)
         os.environ.setdefault("DEXMOTS_CPU_THREADS", str(share))
         torch.set_num_threads(share)
+        _compile_each_module_once()
+
+
+def _compile_each_module_once() -> None:
+    """Workers that need one kernel module at the same moment (the claw and Allegro scenes most tests share) would
+    each compile it: warp builds in a private directory and renames it into the cache. A file lock per module name
+    in the cache lets the second wait for the first's build and load it. Warp's ``Module.load`` is wrapped (a
+    private class: warp-lang is pinned to one minor version); a module already loaded in this process takes no lock."""
+    import fcntl
+
+    import warp as wp
+    from warp._src.context import Module, runtime
+
+    load = Module.load
+
+    def load_once(self, device, block_dim=None, *args, **kwargs):
+        wp.init()
+        key = (runtime.get_device(device).context, self.options["block_dim"] if block_dim is None else block_dim)
+        if key in self.execs:
+            return load(self, device, block_dim, *args, **kwargs)
+        with open(os.path.join(wp.config.kernel_cache_dir, f".{self.name}.lock"), "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            return load(self, device, block_dim, *args, **kwargs)
+
+    Module.load = load_once
 
 
 @pytest.fixture(scope="session")
