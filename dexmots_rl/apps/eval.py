@@ -4,13 +4,18 @@
     dexmots-eval runs/screw_claw_ahac_seed0/checkpoints/last.pt --episodes 200 --out eval.json
     dexmots-eval runs/screw_claw_ahac_seed0 --record eval.mcap      # + dexmots-view eval.mcap
     dexmots-eval runs/spray_bottle_ahac_seed0 --objects heldout      # a tool task on its class's held-out objects
+    dexmots-eval runs/screw_claw_ahac_seed0 --object-params true.json  # on an object with other physics
 
 ``--objects`` evaluates a policy of an articulated-object task on other objects of the same class and topology
 (others are refused: the policy's observation and actions are those of its own):
 ``train`` / ``heldout`` (the class's library split, :func:`dexmots_rl.assets.objects.object_split`) or names
 separated by commas; the result says which (``objects``) and breaks success down by object (``success_by_variant``).
-Each object set has its own file in the run directory, so one does not replace another: ``eval.json`` (the run's
-own objects), ``eval_train.json``, ``eval_heldout.json``, ``eval_<name>+<name>.json`` (:func:`default_out`).
+``--object-params``: a parameter file (``dexmots-sysid``'s format: the object's joint damping, friction, masses
+...) every evaluation world simulates instead of the run's own object parameters (``task.object_params``): a
+policy trained on one model of the object, evaluated on another. Each object set and parameter file has its own
+file in the run directory, so one does not replace another: ``eval.json`` (the run's own objects),
+``eval_train.json``, ``eval_heldout.json``, ``eval_<name>+<name>.json``, ``eval_params_<file stem>.json``
+(:func:`default_out`).
 
 The episodes are the checkpoint's task (:func:`dexmots_rl.algorithms.evaluation.evaluate_policy`).
 """
@@ -29,15 +34,22 @@ from ._cli import os_errors_as_one_line
 __all__ = ["default_out", "main"]
 
 
-def default_out(checkpoint: str, objects: str | None) -> Path:
-    """Where the result goes without ``--out``: the run directory's ``eval.json``, or with ``--objects``
-    ``eval_<objects>.json`` (names joined by ``+``; any character a file name should not hold becomes ``_``)."""
+def default_out(checkpoint: str, objects: str | None, object_params: str | None = None) -> Path:
+    """Where the result goes without ``--out``: the run directory's ``eval.json``; with ``--objects``
+    ``eval_<objects>.json`` (names joined by ``+``), with ``--object-params`` ``..._params_<file stem>.json``
+    (any character a file name should not hold becomes ``_``)."""
     src = Path(checkpoint)
     run_dir = src if src.is_dir() else src.parent.parent
-    if objects is None:
-        return run_dir / "eval.json"
-    names = "+".join(re.sub(r"[^A-Za-z0-9_.-]", "_", n.strip()) for n in objects.split(","))
-    return run_dir / f"eval_{names}.json"
+
+    def safe(name: str) -> str:
+        return re.sub(r"[^A-Za-z0-9_.-]", "_", name.strip())
+
+    parts = ["eval"]
+    if objects is not None:
+        parts.append("+".join(safe(n) for n in objects.split(",")))
+    if object_params is not None:
+        parts.append(f"params_{safe(Path(object_params).stem)}")
+    return run_dir / f"{'_'.join(parts)}.json"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -50,6 +62,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="JSON file (default: <run dir>/eval.json; with --objects, eval_<objects>.json)")
     p.add_argument("--record", default=None, help="also write the first --record-worlds episodes to this MCAP file")
     p.add_argument("--record-worlds", type=int, default=8)
+    p.add_argument("--object-params", default=None,
+                   help="a parameter file (dexmots-sysid's) the evaluation worlds simulate instead of the run's own")
     p.add_argument("--objects", default=None,
                    help="articulated-object tasks: train | heldout | names separated by commas (default: the run's)")
     args = p.parse_args(argv)
@@ -72,13 +86,16 @@ def _run(args, evaluate_policy, policy_from_checkpoint, CheckpointError) -> None
             from ..envs.tasks.allegro.object_scenes import check_evaluation_objects
 
             task_cfg.update(objects=check_evaluation_objects(task_cfg, args.objects), variants=0)
+        if args.object_params is not None:
+            task_cfg["object_params"] = str(Path(args.object_params).resolve())
         result = {"task": data["task"], "algo": data["algo"], "iteration": data["iteration"],
                   **({"objects": args.objects} if args.objects is not None else {}),
+                  **({"object_params": task_cfg["object_params"]} if args.object_params is not None else {}),
                   **evaluate_policy(actor, task_cfg, args.episodes, args.seed, args.device,
                                      record=args.record, record_worlds=args.record_worlds)}
     except (CheckpointError, ValueError) as e:
         raise SystemExit(f"dexmots-eval: {e}") from None
-    out = Path(args.out) if args.out else default_out(args.checkpoint, args.objects)
+    out = Path(args.out) if args.out else default_out(args.checkpoint, args.objects, args.object_params)
     print(dumps_json(result), flush=True)  # first: a result that cannot be written is not lost
     try:
         atomic_write_json(out, result)
