@@ -12,13 +12,14 @@
     dexmots-bench compile --device cuda --arch 90 (--task allegro_rotate [...] | --all) [--jobs 2]  # PTX, no GPU
     dexmots-bench gpu --out gpu_check.json   # every figure on one GPU in one JSON file (scripts/gpu_check.sh)
     dexmots-bench sysid --task screw_claw --json [--counts 2 4] [--methods lbfgs gn fd-gn cmaes]  # identification
+    dexmots-bench sysid-loop --task screw_claw --seeds 0 1  # train on a wrong, the identified and the true model
     dexmots-bench diagnose --task jar --json [--run <run_dir or checkpoint>] [--horizons 1 4 16 32] [--num-envs 4]
 
 Every number is measured in the same run (nothing is read from files but, for ``diagnose``, the diagnosed
 run's own). The result is printed to stdout as one JSON object with ``--json``, a table otherwise; progress goes
 to stderr. The logic lives in :mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`,
-:mod:`.bench_compile`, :mod:`.bench_gpu`, :mod:`.bench_sysid` and :mod:`.bench_diagnose`; ``compile`` and ``gpu``
-always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
+:mod:`.bench_compile`, :mod:`.bench_gpu`, :mod:`.bench_sysid`, :mod:`.bench_sysid_loop` and
+:mod:`.bench_diagnose`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import sys
 from ..envs import list_tasks
 from ._cli import errors_as_one_line
 from .bench_sysid import add_sysid_parser, format_sysid_table, run_sysid_bench
+from .bench_sysid_loop import add_sysid_loop_parser, format_sysid_loop_table, run_sysid_loop
 from .bench_gpu import GPU_TASKS
 from .bench_setup import TRAIN_GOAL_SUCCESS, bench_tasks, grad_bench_tasks, train_one
 
@@ -161,6 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("-q", "--quiet", action="store_true", help="log only warnings to stderr (no progress)")
     add_sysid_parser(sub)
+    add_sysid_loop_parser(sub)
     return parser
 
 
@@ -237,6 +240,8 @@ def _execute(args: argparse.Namespace) -> dict:
                                  args.torch_threads or None, args.overrides)
         if args.bench == "sysid":
             return run_sysid_bench(args)
+        if args.bench == "sysid-loop":
+            return run_sysid_loop(args)
         if args.bench == "diagnose":
             from .bench_diagnose import adjoint_clip_option, diagnose
 
@@ -279,7 +284,7 @@ def main(argv: list[str] | None = None) -> None:
 
             check_device(args.device)
         result = _execute(args)
-    table = format_sysid_table if args.bench == "sysid" else format_table
+    table = {"sysid": format_sysid_table, "sysid-loop": format_sysid_loop_table}.get(args.bench, format_table)
     print(json.dumps(result) if args.json or "rows" not in result else table(result))
     if result.get("ok") is False:  # dexmots-bench compile: a kernel failed (named on stderr and in the JSON)
         sys.exit(1)
