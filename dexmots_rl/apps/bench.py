@@ -19,7 +19,8 @@ Every number is measured in the same run (nothing is read from files but, for ``
 run's own). The result is printed to stdout as one JSON object with ``--json``, a table otherwise; progress goes
 to stderr. The logic lives in :mod:`.bench_throughput`, :mod:`.bench_grad`, :mod:`.bench_baselines`,
 :mod:`.bench_compile`, :mod:`.bench_gpu`, :mod:`.bench_sysid`, :mod:`.bench_sysid_loop` and
-:mod:`.bench_diagnose`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel failed to compile.
+:mod:`.bench_diagnose`; ``compile`` and ``gpu`` always print JSON, and ``compile`` exits non-zero when a kernel
+failed to compile.
 """
 
 from __future__ import annotations

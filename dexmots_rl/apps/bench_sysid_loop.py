@@ -24,6 +24,8 @@ import logging
 import statistics
 from pathlib import Path
 
+from .sysid import _named_values
+
 __all__ = ["MODELS", "add_sysid_loop_parser", "run_sysid_loop", "format_sysid_loop_table"]
 
 log = logging.getLogger(__name__)
@@ -32,21 +34,11 @@ log = logging.getLogger(__name__)
 MODELS = ("truth", "nominal", "identified")
 
 
-def _named_value(token: str) -> tuple[str, float]:
-    name, sep, value = token.partition("=")
-    try:
-        if not (sep and name):
-            raise ValueError
-        return name, float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {token!r}") from None
-
-
 def add_sysid_loop_parser(sub) -> None:
     p = sub.add_parser("sysid-loop", help="train on a wrong nominal model, on the identified one and on the truth; "
                                           "evaluate each policy on the truth")
     p.add_argument("--task", default="screw_claw")
-    p.add_argument("--truth", nargs="+", type=_named_value, metavar="NAME=VALUE",
+    p.add_argument("--truth", nargs="+", type=_named_values(float, "NAME=VALUE"), metavar="NAME=VALUE",
                    default=[("joint_damping", 1.0), ("joint_friction", 1.0)],
                    help="the true object parameters (default: the knob's damping and friction at 1.0)")
     p.add_argument("--nominal-scale", type=float, default=0.5,
@@ -141,7 +133,8 @@ def format_sysid_loop_table(result: dict) -> str:
     for model in MODELS:
         values = ", ".join(f"{name}={value:.4g}" for name, value in models[model].items())
         per_seed = " / ".join(f"{100 * r['success_on_truth']:.0f}" for r in result["rows"] if r["model"] == model)
-        lines.append(f"{model:>10}  {values:<48} {per_seed:>12} %  mean {100 * result['mean_success_on_truth'][model]:.1f} %")
+        mean = 100 * result["mean_success_on_truth"][model]
+        lines.append(f"{model:>10}  {values:<48} {per_seed:>12} %  mean {mean:.1f} %")
     met = "met" if result["goal_met"] else "NOT met"
     lines.append(f"identified vs truth: {result['identified_gap_points']:.1f} points (goal <= "
                  f"{result['goal_points']:g}: {met})")
