@@ -30,7 +30,7 @@ POSITIONAL, KEYWORD = inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter
 # entry point -> its parameters: (name, kind, default) in order (``inspect.Parameter.empty``: required)
 REQUIRED = inspect.Parameter.empty
 SIGNATURES = {
-    "load_scene": [("path", POSITIONAL, REQUIRED), ("contact", KEYWORD, None)],
+    "load_scene": [("path", POSITIONAL, REQUIRED), ("contact", KEYWORD, None), ("articulated", KEYWORD, False)],
     "load_variants": [("paths", POSITIONAL, REQUIRED), ("contact", KEYWORD, None)],
     "load_object_tree": [("asset", POSITIONAL, REQUIRED), ("timestep", KEYWORD, 1.0 / 960.0)],
     "make_simulator": [("scene", POSITIONAL, REQUIRED), ("num_worlds", KEYWORD, REQUIRED), ("device", KEYWORD, "cpu"),

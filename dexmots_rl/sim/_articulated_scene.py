@@ -18,7 +18,7 @@ from ._mesh_sdf import sdf_grid
 from ._mjcf_shapes import AssetError, _quat_to_mat
 from ._object_model import ObjectTree
 
-__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms", "HAND_FRICTION_PARAM"]
+__all__ = ["ArticulatedScene", "ObjectGeoms", "object_geoms", "with_mount", "HAND_FRICTION_PARAM"]
 
 HAND_FRICTION_PARAM = "hand/friction"  # the fingers' Coulomb coefficient on the object
 
@@ -105,6 +105,18 @@ def object_geoms(m) -> ObjectGeoms:
     # a scene without a mesh still binds one value (warp's kernels take no empty array)
     values = np.concatenate(grid_values) if grid_values else np.zeros(1)
     return ObjectGeoms(kind, pos, rot, size, grid, values)
+
+
+def with_mount(geoms: ObjectGeoms) -> ObjectGeoms:
+    """``geoms`` of one body behind a first body without geoms: the fixed mount of a single hinged body
+    (:func:`~dexmots_rl.sim._object_model.single_body_tree`)."""
+    width = geoms.kind.shape[1]
+    return ObjectGeoms(kind=np.concatenate([np.full((1, width), GEOM_NONE, dtype=np.int32), geoms.kind]),
+                       pos=np.concatenate([np.zeros((1, width, 3)), geoms.pos]),
+                       rot=np.concatenate([np.tile(np.eye(3), (1, width, 1, 1)), geoms.rot]),
+                       size=np.concatenate([np.zeros((1, width, 3)), geoms.size]),
+                       grid=np.concatenate([np.zeros((1, width, 4), dtype=np.int32), geoms.grid]),
+                       sdf_values=geoms.sdf_values)
 
 
 def _watertight_mesh(m, g: int) -> tuple[np.ndarray, np.ndarray]:

@@ -179,8 +179,11 @@ class SceneModel:
         return 1 if self.object_kind == OBJECT_HINGE else 6
 
 
-def load_scene(path: str | Path, *, contact: ContactParams | None = None) -> SceneModel:
-    """Compile an MJCF file with MuJoCo and extract the hand chains and the object.
+def load_scene(path: str | Path, *, contact: ContactParams | None = None, articulated: bool = False):
+    """Compile an MJCF file with MuJoCo and extract the hand chains and the object: a :class:`SceneModel` for one
+    hinged or free object body (the knob, the cube), an :class:`~dexmots_rl.sim.ArticulatedScene` for an object
+    tree. ``articulated=True`` reads a single body as an object tree too (a hinged body: one part on a fixed
+    mount; a free body: a free base without parts), for :class:`~dexmots_rl.sim.ArticulatedSimulator`.
 
     Raises :class:`AssetError` naming the file and the problem when it does not parse or does not
     follow the conventions in the module docstring.
@@ -201,12 +204,8 @@ def load_scene(path: str | Path, *, contact: ContactParams | None = None) -> Sce
     hand_fields = _hand_chains(m, d, path, contact)
     hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
     obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
-    if is_articulated_scene(m):
-        from ._articulated_scene import ArticulatedScene, object_geoms
-        from ._object_model import object_tree
-
-        return ArticulatedScene(path=str(path), hand=hand_fields, tree=object_tree(m, d), geoms=object_geoms(m),
-                                palm=_palm_boxes(m, d, hand, [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]))
+    if is_articulated_scene(m) or articulated:
+        return _tree_scene(m, d, path, hand_fields, hand, obj)
     if m.body_jntnum[obj] != 1:
         raise AssetError("body 'object' needs exactly one joint (hinge or free)")
     oj = int(m.body_jntadr[obj])
@@ -258,6 +257,23 @@ def load_scene(path: str | Path, *, contact: ContactParams | None = None) -> Sce
         object_limited=bool(m.jnt_limited[oj]) and kind == OBJECT_HINGE,
         object_range=(float(m.jnt_range[oj, 0]), float(m.jnt_range[oj, 1])) if m.jnt_limited[oj] else (-1e9, 1e9),
     )
+
+
+def _tree_scene(m, d, path: Path, hand_fields: dict, hand: int, obj: int):
+    """The :class:`~dexmots_rl.sim.ArticulatedScene` of a compiled model whose body ``obj`` is an object tree or,
+    read as one, a single hinged or free body (see :func:`load_scene`)."""
+    from ._articulated_scene import ArticulatedScene, object_geoms, with_mount
+    from ._object_model import object_tree, single_body_tree
+
+    obj_geom = [g for g in range(m.ngeom) if m.geom_bodyid[g] == obj][0]
+    palm = _palm_boxes(m, d, hand, obj_geom)
+    if is_articulated_scene(m):
+        return ArticulatedScene(path=str(path), hand=hand_fields, tree=object_tree(m, d), geoms=object_geoms(m),
+                                palm=palm)
+    tree, geoms = single_body_tree(m, d), object_geoms(m)
+    if not tree.free:  # the palm pushes a free object only, as in SceneModel
+        geoms, palm = with_mount(geoms), tuple(np.zeros((0,) + a.shape[1:]) for a in palm)
+    return ArticulatedScene(path=str(path), hand=hand_fields, tree=tree, geoms=geoms, palm=palm)
 
 
 def _hand_chains(m, d, path: Path, contact: ContactParams) -> dict:

@@ -32,7 +32,7 @@ import numpy as np
 from ._constants import TABLE_FRICTION
 from ._mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 
-__all__ = ["ObjectTree", "object_tree", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
+__all__ = ["ObjectTree", "object_tree", "single_body_tree", "MOUNT", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
            "SLIDE", "TABLE_FRICTION_PARAM"]
 
 MAX_PARTS = 4
@@ -41,6 +41,8 @@ HINGE, SLIDE = 0, 1
 # per-joint physical parameters, by name: ("sim", "params", "<joint>/<name>") in the env's TensorDict
 JOINT_PARAMS = ("damping", "friction", "stiffness", "rest")
 TABLE_FRICTION_PARAM = "table/friction"  # the table's Coulomb coefficient (a free base on a table)
+MOUNT = "object_mount"  # the fixed, massless base a single hinged body turns on (single_body_tree)
+UNLIMITED = 1.0e9  # rad or m: the range of a part joint the MJCF leaves unlimited (its stops are never reached)
 
 
 
@@ -291,3 +293,41 @@ def object_tree(m, d) -> ObjectTree:
         mass=np.array([i[0] for i in inertias]), com=np.array([i[1] for i in inertias]),
         inertia=np.array([i[2] for i in inertias]), ancestor=ancestor, sample_pos=sample_pos,
         sample_radius=sample_radius, q0=np.array(q0, dtype=np.float64), table_height=table_height)
+
+
+def single_body_tree(m, d) -> ObjectTree:
+    """Body ``object`` of the knob and cube scenes (one body on one hinge or free joint, nothing below it) as an
+    object tree: a free body is a free base with no parts (:func:`object_tree` reads it as it is); a hinged body is
+    the one part of a fixed, massless base :data:`MOUNT` placed where its parent's frame puts the body at angle 0,
+    so its state is its hinge angle as before. An unlimited hinge gets the range +-:data:`UNLIMITED`."""
+    import mujoco
+
+    root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+    if root < 0:
+        raise AssetError("the scene has no body named 'object'")
+    joint = int(m.body_jntadr[root])
+    if m.body_jntnum[root] != 1 or int(m.jnt_type[joint]) not in (mujoco.mjtJoint.mjJNT_HINGE,
+                                                                   mujoco.mjtJoint.mjJNT_FREE):
+        raise AssetError("body 'object' needs exactly one joint (hinge or free)")
+    if int(m.jnt_type[joint]) == mujoco.mjtJoint.mjJNT_FREE:
+        return object_tree(m, d)
+    parent = int(m.body_parentid[root])
+    parent_rot = d.xmat[parent].reshape(3, 3)
+    mount_pos = d.xpos[parent] + parent_rot @ m.body_pos[root]
+    mount_rot = parent_rot @ _quat_to_mat(m.body_quat[root])
+    dof, adr = int(m.jnt_dofadr[joint]), int(m.jnt_qposadr[joint])
+    limited = bool(m.jnt_limited[joint])
+    mass, com, inertia = _body_inertia(m, root)
+    name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"#{joint}"
+    return ObjectTree(
+        body_names=[MOUNT, "object"], joint_names=[name], free=False, parent=np.array([-1, 0]),
+        offset_pos=np.stack([mount_pos, np.zeros(3)]), offset_rot=np.stack([mount_rot, np.eye(3)]),
+        joint_kind=np.array([HINGE], dtype=np.int32), joint_axis=(m.jnt_axis[joint] / np.linalg.norm(
+            m.jnt_axis[joint]))[None], joint_anchor=m.jnt_pos[joint][None].copy(),
+        joint_range=(m.jnt_range[joint] if limited else np.array([-UNLIMITED, UNLIMITED]))[None].astype(np.float64),
+        joint_damping=np.array([m.dof_damping[dof]]), joint_friction=np.array([m.dof_frictionloss[dof]]),
+        joint_stiffness=np.array([m.jnt_stiffness[joint]]), joint_rest=np.array([m.qpos_spring[adr]]),
+        armature=np.array([m.dof_armature[dof]]), joint_inertia=np.array([m.dof_M0[dof]]),
+        mass=np.array([0.0, mass]), com=np.stack([np.zeros(3), com]), inertia=np.stack([np.zeros((3, 3)), inertia]),
+        ancestor=np.array([[0.0], [1.0]]), sample_pos=np.zeros((2, MAX_SAMPLES, 3)),
+        sample_radius=-np.ones((2, MAX_SAMPLES)), q0=np.array([m.qpos0[adr]], dtype=np.float64), table_height=None)
