@@ -10,7 +10,10 @@ with the tool scenes' kernels. For each task this prints, as JSON:
   quaternion components for the cube) and the fingers' summed normal force (relative to its largest value), and
   the object's coordinates at the end (their spread in both); ``max_one_step_gap``: the largest difference of
   one step of each from the same state (the fused trajectory's), which the laws' differences make, without the
-  divergence of two contact-rich trajectories;
+  divergence of two contact-rich trajectories (``mean_one_step_gap``: its mean over worlds, coordinates and
+  steps);
+* ``agreement_fused_palm_law`` (the cube, whose palm pushes it): the same with the split kernels' palm pushing
+  with the fused kernel's palm law (:func:`palm_law`) instead of the table's;
 * ``speed``: env-steps per second (wall and CPU) of a forward step and of a forward + backward step
   (``dexmots-bench throughput``'s protocol: settled into contact, chunks of ``chunk_steps``), the two simulators
   measured alternately ``repeats`` times, the best of each kept, and split over fused.
@@ -21,6 +24,7 @@ Run: ``DEXMOTS_CPU_THREADS=1 python benchmarks/split_vs_fused.py --num-envs 256`
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 
@@ -28,7 +32,8 @@ import torch
 
 from dexmots_rl.apps.bench_setup import bench_env, measure_rates
 from dexmots_rl.apps.bench_throughput import SimBench
-from dexmots_rl.sim import Control, cpu_threads, load_scene, make_simulator
+from dexmots_rl.sim import (ArticulatedSimulator, ContactParams, Control, TableContact, cpu_threads, load_scene,
+                            make_simulator)
 
 __all__ = ["agreement", "speed"]
 
@@ -36,18 +41,30 @@ log = logging.getLogger(__name__)
 TASKS = ("screw_claw", "allegro_rotate", "repose_cube")
 
 
-def scenes(task: str):
-    """(the task's bench poses, its contact law, its fused scene, the same MJCF as an object tree)."""
+def scenes(task: str, **law_changes):
+    """(the task's bench poses, its contact law with ``law_changes``, its fused scene, the same MJCF as an object
+    tree)."""
     env = bench_env(task)
-    fused = env.sim.scene
-    return env.bench_poses(), env.sim.contact, fused, load_scene(fused.path, contact=env.sim.contact, articulated=True)
+    fused, law = env.sim.scene, dataclasses.replace(env.sim.contact, **law_changes)
+    return env.bench_poses(), law, fused, load_scene(fused.path, contact=law, articulated=True)
+
+
+def palm_law(law: ContactParams) -> TableContact:
+    """The fused kernel's palm law in the split kernels' terms (they push with the table's law): its stiffness,
+    sharpness, and the fingers' damping, friction and slip velocity; its box stays exact, not rounded."""
+    return TableContact(stiffness=law.palm_stiffness, sharpness=law.palm_sharpness, damping=law.damping,
+                        friction=law.friction, slip_velocity=law.slip_velocity)
 
 
 def agreement(task: str, worlds: int = 4, steps: int = 50, noise: float = 0.3, seed: int = 0,
-              dtype: torch.dtype = torch.float32) -> dict:
-    """The two simulators' trajectories under the same actions (see the module docstring)."""
-    poses, law, fused_scene, split_scene = scenes(task)
-    sims = [make_simulator(s, num_worlds=worlds, contact=law, dtype=dtype) for s in (fused_scene, split_scene)]
+              dtype: torch.dtype = torch.float32, same_palm: bool = False, **law_changes) -> dict:
+    """The two simulators' trajectories under the same actions (see the module docstring); ``same_palm``: the split
+    kernels' palm pushes with :func:`palm_law` (default: the table's law, as in the tool scenes); ``law_changes``:
+    fields of the task's :class:`~dexmots_rl.sim.ContactParams` to change (e.g. ``friction=0.0``)."""
+    poses, law, fused_scene, split_scene = scenes(task, **law_changes)
+    sims = [make_simulator(fused_scene, num_worlds=worlds, contact=law, dtype=dtype),
+            ArticulatedSimulator(split_scene, worlds, contact=law, dtype=dtype,
+                                 table=palm_law(law) if same_palm else None)]
     nu = sims[0].nu
     gear = torch.as_tensor(fused_scene.actuator_gear, dtype=dtype)
     generator = torch.Generator().manual_seed(seed)
@@ -57,6 +74,7 @@ def agreement(task: str, worlds: int = 4, steps: int = 50, noise: float = 0.3, s
                torch.zeros(worlds, s.nv, dtype=dtype)) for s in sims]
     gap = {"hand_q": 0.0, "object_q": 0.0, "contact_force": 0.0}
     one_step = {"hand_q": 0.0, "object_q": 0.0, "hand_qd": 0.0, "object_qd": 0.0}
+    one_step_mean = dict.fromkeys(one_step, 0.0)
     force_scale = 0.0
     z = torch.zeros(worlds, nu, dtype=dtype)
     for t in range(steps):
@@ -69,8 +87,10 @@ def agreement(task: str, worlds: int = 4, steps: int = 50, noise: float = 0.3, s
             states[i] = (out.joint_q, out.joint_qd)
             outs.append(out)
         for key, a, b in (("q", outs[0].joint_q, resync.joint_q), ("qd", outs[0].joint_qd, resync.joint_qd)):
-            one_step[f"hand_{key}"] = max(one_step[f"hand_{key}"], (a[:, :nu] - b[:, :nu]).abs().max().item())
-            one_step[f"object_{key}"] = max(one_step[f"object_{key}"], (a[:, nu:] - b[:, nu:]).abs().max().item())
+            for part, cols in (("hand", slice(0, nu)), ("object", slice(nu, None))):
+                diff = (a[:, cols] - b[:, cols]).abs()
+                one_step[f"{part}_{key}"] = max(one_step[f"{part}_{key}"], diff.max().item())
+                one_step_mean[f"{part}_{key}"] += diff.mean().item() / steps
         (qa, _), (qb, _) = states
         gap["hand_q"] = max(gap["hand_q"], (qa[:, :nu] - qb[:, :nu]).abs().max().item())
         gap["object_q"] = max(gap["object_q"], (qa[:, nu:] - qb[:, nu:]).abs().max().item())
@@ -79,8 +99,13 @@ def agreement(task: str, worlds: int = 4, steps: int = 50, noise: float = 0.3, s
     gap["contact_force"] /= max(force_scale, 1e-12)
     end = [s[0][:, nu:] for s in states]
     return {"steps": steps, "worlds": worlds, "noise": noise, "max_gap": gap, "max_one_step_gap": one_step,
+            "mean_one_step_gap": one_step_mean,
             "max_contact_force": force_scale,
             "object_q_end_fused": end[0].tolist(), "object_q_end_split": end[1].tolist()}
+
+
+def split_scene_has_palm(task: str) -> bool:
+    return len(scenes(task)[3].palm[0]) > 0
 
 
 def speed(task: str, num_envs: int = 256, min_time: float = 2.0, repeats: int = 2, settle_steps: int = 20,
@@ -119,11 +144,16 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--steps", type=int, default=50, help="env steps of the agreement rollout")
     parser.add_argument("--no-speed", action="store_true", help="the agreement only")
+    parser.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
+                        help="contact-law fields changed in the agreement rollouts (e.g. friction=0)")
     args = parser.parse_args(argv)
+    law = {k: float(v) for k, v in (item.split("=", 1) for item in args.law)}
     logging.basicConfig(level=logging.INFO)
     result = {"threads": cpu_threads(), "tasks": {}}
     for task in args.tasks:
-        entry = {"agreement": agreement(task, steps=args.steps)}
+        entry = {"agreement": agreement(task, steps=args.steps, **law)}
+        if split_scene_has_palm(task):
+            entry["agreement_fused_palm_law"] = agreement(task, steps=args.steps, same_palm=True, **law)
         if not args.no_speed:
             entry["speed"] = speed(task, args.num_envs, args.min_time, args.repeats)
         result["tasks"][task] = entry
