@@ -86,7 +86,7 @@ def test_tree_steps_as_the_fused_kernel_out_of_contact(task):
         torch.testing.assert_close(qdb[:, :nu], qda[:, :nu])
         torch.testing.assert_close(qb[:, nu:], qa[:, nu:], rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(qdb[:, nu:], qda[:, nu:], rtol=1e-4, atol=1e-5)
-    assert float((states[0][0][:, nu:] - open_q[nu:]).abs().max()) > 1e-2  # the object moved
+    assert float((states[0][0][:, nu:] - open_q[nu:]).abs().max()) > 1e-3  # the object moved
 
 
 def _contact_gradient_check(task):
