@@ -6,7 +6,8 @@ From the task's bench state (``dexmots-bench throughput``'s: the pre-grasp pose,
 one taped env step's recorded launches and its reverse pass's are each timed alone on one core (this process's CPU
 time, best of ``--repeats`` rounds; the launches of all substeps summed per kernel). Prints one JSON line per task:
 milliseconds per env step of every kernel (all worlds), forward and reverse, and the totals. The simulator's own
-threads are set by ``DEXMOTS_CPU_THREADS`` (use 1: the timings are of one block of worlds).
+threads are set by ``DEXMOTS_CPU_THREADS`` (use 1: the timings are of one block of worlds). A knob or cube task
+(``screw_claw``...) runs its scene read as an object tree (``load_scene(path, articulated=True)``).
 """
 
 from __future__ import annotations
@@ -20,9 +21,13 @@ import time
 def profile(task: str, worlds: int, repeats: int) -> dict:
     from dexmots_rl.apps.bench_setup import bench_env
     from dexmots_rl.apps.bench_throughput import SimBench
+    from dexmots_rl.sim import ArticulatedScene, load_scene
 
     env = bench_env(task)
-    bench = SimBench(env.sim.scene, env.bench_poses(), worlds, "cpu", 16, 20, 1, "state", env.sim.contact)
+    scene = env.sim.scene
+    if not isinstance(scene, ArticulatedScene):  # a knob or cube task: its scene read as an object tree
+        scene = load_scene(scene.path, contact=env.sim.contact, articulated=True)
+    bench = SimBench(scene, env.bench_poses(), worlds, "cpu", 16, 20, 1, "state", env.sim.contact)
     traj, grads = bench._taped_step()
     traj.backward(grads)  # records the adjoint launches
     (lo, _), = traj.blocks  # one block with DEXMOTS_CPU_THREADS=1
