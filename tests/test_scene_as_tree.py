@@ -8,9 +8,11 @@ import torch
 
 from dexmots_rl.apps.bench_setup import bench_task, bench_tasks
 from dexmots_rl.envs.registry import task_contact, task_entry
-from dexmots_rl.sim import ArticulatedScene, Control, SceneModel, load_scene, make_simulator
+from dexmots_rl.assets import asset_path
+from dexmots_rl.sim import ArticulatedScene, AssetError, Control, SceneModel, load_scene, make_simulator
 
 TASKS = bench_tasks()  # the tasks whose object is one hinged or free body
+CLAW_XML = asset_path("claw_screw.xml")
 
 
 def _scenes(task):
@@ -132,3 +134,14 @@ def test_claw_tree_gradient_in_contact_matches_finite_differences():
 @pytest.mark.parametrize("task", [t for t in TASKS if t != "screw_claw"])
 def test_allegro_tree_gradient_in_contact_matches_finite_differences(task):
     _contact_gradient_check(task)
+
+
+@pytest.mark.parametrize("articulated", [False, True])
+def test_a_sliding_single_body_is_refused_naming_its_joint(tmp_path, articulated):
+    """A single object body on a slide joint is neither scene's: read either way, one error naming the joint, its
+    body and the joints it may be."""
+    text = CLAW_XML.read_text().replace('<joint name="knob_hinge" type="hinge"', '<joint name="knob_hinge" type="slide"')
+    path = tmp_path / "slide.xml"
+    path.write_text(text)
+    with pytest.raises(AssetError, match="joint 'knob_hinge' of body 'object' must be a hinge or a free joint"):
+        load_scene(path, articulated=articulated)

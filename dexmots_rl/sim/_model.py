@@ -31,6 +31,7 @@ from ._mjcf_shapes import (
 )
 from ._constants import HAND_FRICTION
 from ._object_model import HINGE, SLIDE  # one joint-kind enumeration: the hand's and the object's joints
+from ._object_model import single_body_error
 
 __all__ = ["AssetError", "SceneModel", "ContactParams", "OBJECT_PARAMS", "load_scene"]
 
@@ -214,7 +215,7 @@ def load_scene(path: str | Path, *, contact: ContactParams | None = None, articu
     elif int(m.jnt_type[oj]) == int(mujoco.mjtJoint.mjJNT_FREE):
         kind, q0 = OBJECT_FREE, m.qpos0[m.jnt_qposadr[oj] : m.jnt_qposadr[oj] + 7].copy()
     else:
-        raise AssetError("the object joint must be a hinge or a free joint")
+        raise AssetError(single_body_error(m, oj))
     parent = m.body_parentid[obj]
     base_rot = d.xmat[parent].reshape(3, 3) @ _quat_to_mat(m.body_quat[obj])
     base_pos = d.xpos[parent] + d.xmat[parent].reshape(3, 3) @ m.body_pos[obj]

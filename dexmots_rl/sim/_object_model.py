@@ -32,7 +32,7 @@ import numpy as np
 from ._constants import TABLE_FRICTION
 from ._mjcf_shapes import AssetError, _body_inertia, _quat_to_mat
 
-__all__ = ["ObjectTree", "object_tree", "single_body_tree", "MOUNT", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
+__all__ = ["ObjectTree", "object_tree", "single_body_tree", "single_body_error", "MOUNT", "joint_param_names", "MAX_PARTS", "MAX_SAMPLES", "JOINT_PARAMS", "HINGE",
            "SLIDE", "TABLE_FRICTION_PARAM"]
 
 MAX_PARTS = 4
@@ -295,6 +295,17 @@ def object_tree(m, d) -> ObjectTree:
         sample_radius=sample_radius, q0=np.array(q0, dtype=np.float64), table_height=table_height)
 
 
+def _joint_name(m, joint: int) -> str:
+    import mujoco
+
+    return mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"#{joint}"
+
+
+def single_body_error(m, joint: int) -> str:
+    """The error of a single object body whose ``joint`` is neither a hinge nor a free joint."""
+    return f"joint {_joint_name(m, joint)!r} of body 'object' must be a hinge or a free joint"
+
+
 def single_body_tree(m, d) -> ObjectTree:
     """Body ``object`` of the knob and cube scenes (one body on one hinge or free joint, nothing below it) as an
     object tree: a free body is a free base with no parts (:func:`object_tree` reads it as it is); a hinged body is
@@ -306,9 +317,10 @@ def single_body_tree(m, d) -> ObjectTree:
     if root < 0:
         raise AssetError("the scene has no body named 'object'")
     joint = int(m.body_jntadr[root])
-    if m.body_jntnum[root] != 1 or int(m.jnt_type[joint]) not in (mujoco.mjtJoint.mjJNT_HINGE,
-                                                                   mujoco.mjtJoint.mjJNT_FREE):
+    if m.body_jntnum[root] != 1:
         raise AssetError("body 'object' needs exactly one joint (hinge or free)")
+    if int(m.jnt_type[joint]) not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_FREE):
+        raise AssetError(single_body_error(m, joint))
     if int(m.jnt_type[joint]) == mujoco.mjtJoint.mjJNT_FREE:
         return object_tree(m, d)
     parent = int(m.body_parentid[root])
@@ -318,7 +330,7 @@ def single_body_tree(m, d) -> ObjectTree:
     dof, adr = int(m.jnt_dofadr[joint]), int(m.jnt_qposadr[joint])
     limited = bool(m.jnt_limited[joint])
     mass, com, inertia = _body_inertia(m, root)
-    name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint) or f"#{joint}"
+    name = _joint_name(m, joint)
     return ObjectTree(
         body_names=[MOUNT, "object"], joint_names=[name], free=False, parent=np.array([-1, 0]),
         offset_pos=np.stack([mount_pos, np.zeros(3)]), offset_rot=np.stack([mount_rot, np.eye(3)]),
