@@ -211,3 +211,10 @@ def test_init_stiffness_starts_the_vi_policy_stiff_and_leaves_its_targets(tmp_pa
     shift = locs[1] - locs[0]  # the same seed gives the same weights: only the output bias differs
     torch.testing.assert_close(shift[:, :nu], torch.zeros_like(shift[:, :nu]))
     torch.testing.assert_close(shift[:, nu:], torch.full_like(shift[:, nu:], math.atanh(0.8)))
+
+
+def test_algo_num_envs_sets_the_training_worlds_and_null_keeps_the_tasks(tmp_path):
+    from dexmots_rl.algorithms.shac import build
+
+    assert build(_cfg(tmp_path / "run"))[0].batch_size == (4,)  # TINY's task.num_envs
+    assert build(_cfg(tmp_path / "run", "algo.num_envs=2"))[0].batch_size == (2,)

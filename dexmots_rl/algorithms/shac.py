@@ -46,8 +46,8 @@ log = logging.getLogger(__name__)
 def build(cfg: DictConfig, rank: int = 0):
     """Env, networks, loss, optimisers and the target updater of a run."""
     torch.manual_seed(cfg.seed + rank)
-    env = make_env(cfg.task, differentiable=True, seed=cfg.seed + 1000 * rank, device=cfg.device,
-                   adjoint_clip=cfg.algo.get("adjoint_clip"))
+    env = make_env(cfg.task, num_envs=cfg.algo.get("num_envs"), differentiable=True, seed=cfg.seed + 1000 * rank,
+                   device=cfg.device, adjoint_clip=cfg.algo.get("adjoint_clip"))
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     torch.manual_seed(cfg.seed)  # identical initial networks on every rank

@@ -35,6 +35,7 @@ ALGO_FIELDS: dict[str, tuple[Any, Optional[dict]]] = {
     "name": (str, None),
     # SHAC / AHAC
     "iterations": (int, _POSITIVE),
+    "num_envs": (Optional[int], _POSITIVE),
     "horizon": (int, _POSITIVE),
     "gamma": (float, rule(gt=0, le=1)),
     "lmbda": (float, _SHARE),
