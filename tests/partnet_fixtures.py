@@ -229,3 +229,19 @@ def screw_cap(root: Path) -> Path:
             .joint("joint_2", "prismatic", "link_1", "link_0_helper", axis=(0, 1, 0), limit=(0, 0.1))
             .joint("joint_0", "continuous", "link_0_helper", "link_0", axis=(0, 1, 0))
             .write())
+
+
+def strongbox(root: Path) -> Path:
+    """A strongbox as PartNet's safes are cut: two side walls, a top plate and the block of the body (about 3 kg
+    at the loader's default size and density), and a thin door on a hinge at the edge of its front. The door's
+    centre, the grasp point, lies on the body's face: the open hand held over it sinks its fingers into the
+    top plate and the body, far heavier than they are."""
+    body = [box((1.0, 0.9, 0.14), (0, 0.45, -0.37)), box((1.0, 0.9, 0.14), (0, 0.45, 0.37)),
+            box((1.0, 0.14, 0.9), (0, 0.83, 0)), box((0.95, 0.8, 0.85), (0, 0.4, 0))]
+    return (PartNetFolder(root, "Safe")
+            .link("link_1", body)
+            .link("link_0", [box((0.9, 0.8, 0.02), (0.0, 0.45, 0.46))], pivot=(-0.45, 0.45, 0.46), kind="hinge",
+                  label="door")
+            .joint("joint_1", "fixed", "base", "link_1", rpy=Y_UP_TO_Z_UP)
+            .joint("joint_0", "revolute", "link_1", "link_0", axis=(0, 1, 0), limit=(0, 2.9))
+            .write())

@@ -35,7 +35,7 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
     mat33 = wp.types.matrix((3, 3), dtype)
     funcs = build_funcs(dtype)
     softplus, box_distance, grid_distance = funcs.softplus, funcs.box_distance, funcs.grid_distance
-    fixed_vec3 = funcs.fixed_vec3  # a model read without an adjoint
+    fixed, fixed_vec3 = funcs.fixed, funcs.fixed_vec3  # model reads without an adjoint
     normal_force, slip_norm, body_mobility = funcs.normal_force, funcs.slip_norm, funcs.body_mobility
 
     @wp.func
@@ -196,18 +196,34 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
                             if pen > dtype(-CONTACT_CUTOFF) / m.beta:
                                 touching[w, s] = 1
                                 n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                                # the finger's mobility at the sphere along n (1/kg): the chain's hinges with only
+                                # their rotor inertia and the damping's implicit share, which bounds it from above
+                                # (the links' inertia and the drive only lower it), so the implicit damping below
+                                # stays on the safe side (a hinge with neither gives no bound: left out)
+                                finger_n = dtype(0.0)
+                                for k in range(J):
+                                    i = f * J + k
+                                    rotor = fixed(m.armature, i) + dt * fixed(m.damping, i)
+                                    if k <= k_link and rotor > dtype(0.0):
+                                        lever = wp.cross(link_a[w, i], p - link_x[w, i])
+                                        finger_n = finger_n + wp.dot(lever, n) * wp.dot(lever, n) / rotor
                                 cp = p - n * rad
                                 r = cp - body_c[w, b]
                                 v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
                                 vn = wp.dot(v_rel, n)
                                 # the one contact law (kernel_funcs.normal_force): its damping implicit against the
-                                # body's mobility at the contact (the finger is far heavier)
-                                # (a moving body's model mobility times its model mass over its mass parameter)
+                                # mobility of the two sides at the contact, the body's (a moving body's model
+                                # mobility times its model mass over its mass parameter) plus the finger's. Against
+                                # the body's alone, a finger pressed into a body far heavier than it (the open
+                                # hand's fingers sunk in a 3 kg safe) had its velocity reversed and grown every
+                                # substep, and the contact made energy. The friction stays explicit: implicit
+                                # against these (upper-bound) mobilities it slipped, and the scissors and the jar's
+                                # lid no longer followed the fingers.
                                 lighter = dtype(1.0)
                                 if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
                                     lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
-                                mobility = lighter * body_mobility(m.body_inv_mass[v, b], m.body_inv_inertia[v, b], Rb,
-                                                                   r, n)
+                                mobility = finger_n + lighter * body_mobility(m.body_inv_mass[v, b],
+                                                                              m.body_inv_inertia[v, b], Rb, r, n)
                                 fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
                                 vt = v_rel - vn * n
                                 ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt

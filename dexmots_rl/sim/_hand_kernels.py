@@ -88,7 +88,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         sdf_values: wp.array(dtype=dtype)  # every variant's sdf grids (m, negative inside), x-major, one after another
         body_bound: wp.array2d(dtype=dtype)  # [V, B] m: a sphere about the body origin holding its geoms (with margin)
         # [V, B] each object body's inverse mass (1/kg) and inverse inertia about its com (body frame): the contact
-        # law's damping is implicit against the body's mobility (zero: a fixed base)
+        # law's damping is implicit against the body's mobility (zero: a fixed base) plus the finger's
         body_inv_mass: wp.array2d(dtype=dtype)
         body_inv_inertia: wp.array2d(dtype=mat33)
         body_mass: wp.array2d(dtype=dtype)  # [V, B] kg: the masses the two above are of
