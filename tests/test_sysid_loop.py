@@ -44,3 +44,18 @@ def test_bad_input_is_one_error_before_any_file(tmp_path, argv, message):
     with pytest.raises(SystemExit, match=f"^dexmots-bench: {message}"):
         bench_main(["sysid-loop", "--out-dir", str(out), *argv])
     assert not out.exists()
+
+
+@pytest.mark.parametrize("result", [{"interrupted": "SIGTERM", "iteration": 140, "run_dir": "runs/x"}, {}])
+def test_a_training_stopped_before_its_evaluation_is_one_line_saying_how_to_continue(monkeypatch, result):
+    """A signal (or stop_after) ends a benchmark's training before its final evaluation: one line naming the run
+    and the resume command, not a KeyError from the missing success rate."""
+    import argparse
+
+    from dexmots_rl.apps import bench_setup, train
+
+    monkeypatch.setattr(train, "run", lambda cfg: dict(result))
+    args = argparse.Namespace(task="screw_claw", algo="ahac", device="cpu", overrides=[])
+    with pytest.raises(SystemExit, match=r"^dexmots-bench: the training in runs/x stopped( at iteration 140)? before "
+                                         r"its evaluation .*dexmots-train resume=runs/x"):
+        bench_setup.train_one(args, 0, "runs/x")

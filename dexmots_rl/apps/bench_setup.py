@@ -98,6 +98,11 @@ def train_one(args, seed: int, run_dir: str | None) -> dict:
                                            f"device={args.device}", f"run_dir={run_dir}", "progress=false",
                                            *args.overrides])
     result = train(cfg)
+    if "success_rate" not in result:  # a signal or stop_after ended it before its final evaluation
+        at = f" at iteration {result['iteration']}" if "iteration" in result else ""
+        why = result.get("interrupted", "stop_after")
+        raise SystemExit(f"dexmots-bench: the training in {run_dir} stopped{at} before its evaluation ({why}; a "
+                         f"checkpoint was saved); continue with: dexmots-train resume={run_dir}")
     return {"task": args.task, "algo": args.algo, "seed": seed, "success_rate": result["success_rate"],
             "wall_clock_s": result["train_wall_clock_s"], "env_steps": result["env_steps"],
             "mean_final_error": result.get("mean_final_error"), "goal_success_rate": TRAIN_GOAL_SUCCESS,
