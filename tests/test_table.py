@@ -331,24 +331,91 @@ def test_the_equal_steps_view_reads_each_run_at_the_fewest_env_steps_of_its_task
         return {"task": "screw_claw", "method": method, "seed": seed, "experiment": "table", "status": "finished",
                 "stopped_by": stopped_by, "env_steps": env_steps, "success": success, "run_dir": f"{method}{seed}"}
 
+    def point(env_steps, success, episodes=20):
+        return {"env_steps": env_steps, "success": success, "episodes": episodes}
+
     curves = {  # periodic evaluations, then the final one at the run's last env step
-        "dexmots0": [{"env_steps": 5_000, "success": 0.6}, {"env_steps": 10_000, "success": 0.9}],
-        "dexmots1": [{"env_steps": 4_000, "success": 0.4}, {"env_steps": 12_000, "success": 1.0}],
-        "ppo0": [{"env_steps": 6_000, "success": 0.1}, {"env_steps": 90_000, "success": 0.8}],
-        "ppo1": [{"env_steps": 20_000, "success": 0.3}, {"env_steps": 80_000, "success": 0.7}],  # none by 10k
+        "dexmots0": [point(5_000, 0.6), point(10_000, 0.9, 100)],
+        "dexmots1": [point(4_000, 0.4), point(12_000, 1.0, 100)],
+        "ppo0": [point(6_000, 0.1), point(90_000, 0.8, 100)],
+        "ppo1": [point(20_000, 0.3), point(80_000, 0.7, 100)],  # none by 10k
     }
     rows = add_equal_steps([row("dexmots", 0, 10_000, 0.9), row("dexmots", 1, 12_000, 1.0),
                             row("ppo", 0, 90_000, 0.8), row("ppo", 1, 80_000, 0.7),
                             row("mpc", 0, 400, 0.5, stopped_by="no_training")], curves.get)
     assert [r.get("success_at_equal_steps") for r in rows] == [0.9, 0.4, 0.1, None, None]
     assert {r.get("equal_env_steps") for r in rows[:4]} == {10_000} and "equal_env_steps" not in rows[4]
-    methods = METHODS + [("mpc", "MPC")]
-    assert equal_steps_table(rows, TASKS[:1], methods) == (
-        "| Environment | Ours | PPO | MPC | Env steps |\n|---|---:|---:|---:|---:|\n"
-        "| Screw-top (Claw) | 65.0 ± 35.4 | 10.0 (n=1) | no training | 10,000 |")
-    # a planner's cost: its per-episode figures, or (older runs) its totals over the episodes
+    # which evaluation each value is: its env steps and its episodes (the final one's 100, a periodic one's 20)
+    assert [r.get("equal_steps_eval_env_steps") for r in rows] == [10_000, 4_000, 6_000, None, None]
+    assert [r.get("equal_steps_eval_episodes") for r in rows] == [100, 20, 20, None, None]
+    # a planner: its success and its planning CPU per evaluation episode, or that its run did not record it
     rows[4].update(planning_cost({"episodes": 4, "sim_steps": 4_000, "wall_clock_s": 2.0}))
     assert rows[4]["planning_sim_steps_per_episode"] == 1_000 and rows[4]["planning_wall_s_per_episode"] == 0.5
+    methods = METHODS + [("mpc", "MPC")]
+    assert equal_steps_table(rows, TASKS[:1], methods) == (
+        "| Environment | Ours | PPO | MPC | Env steps (the run with the fewest) |\n|---|---:|---:|---:|---:|\n"
+        "| Screw-top (Claw) | 65.0 ± 35.4 (at 4.0–10.0k, 20–100 ep) | 10.0 (n=1 of 2; at 6.0k, 20 ep) "
+        "| 50.0 (CPU s / episode not recorded) | 10,000 (Ours, seed 0) |")
     assert planning_cost_table(rows, TASKS, "mpc") == (
         "| Environment | success % | sim steps / episode | CPU s / episode | wall s / episode |\n"
-        "|---|---:|---:|---:|---:|\n| Screw-top (Claw) | 50.0 | 1,000 | – | 0.50 |")
+        "|---|---:|---:|---:|---:|\n| Screw-top (Claw) | 50.0 | 1,000 | not recorded | 0.50 |")
+    rows[4].update(planning_cost({"episodes": 4, "sim_steps": 4_000, "wall_clock_s": 2.0,
+                                  "planning_cpu_s_per_episode": 0.4567, "planning_wall_s_per_episode": 0.5}))
+    assert "| 50.0 (0.46 CPU s / episode) |" in equal_steps_table(rows, TASKS[:1], methods)
+
+
+def _fake_planner(run_dir: Path, task: str, success: float, config, cpu_s_per_episode: float | None) -> None:
+    """A run directory as ``algo=mpc`` leaves it (one evaluation, no training); ``cpu_s_per_episode`` None: a
+    run made before the planning's CPU time was recorded."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(config, resolve=True))
+    cost = {"sim_steps": 120_000, "sim_steps_per_episode": 1_200, "wall_clock_s": 80.0}
+    if cpu_s_per_episode is not None:
+        cost.update(planning_cpu_s_per_episode=cpu_s_per_episode, planning_wall_s_per_episode=0.8)
+    metrics = {"task": task, "algo": "mpc", "success_rate": success, "episodes": 100, "env_steps": 10_000,
+               "iterations": 0, "train_wall_clock_s": 0.0, **cost,
+               "budget": {"wall_clock_s": None, "env_steps": None, "cpu_s": None, "stopped_by": "no_training"}}
+    (run_dir / "metrics.jsonl").write_text(json.dumps({"iteration": 0, "success_rate": success}) + "\n")
+    (run_dir / "metrics.json").write_text(json.dumps(metrics))
+
+
+def test_the_report_shows_both_views_and_the_planners_cost_from_a_sweep_directory(tmp_path, monkeypatch):
+    """A fake sweep: DexMOTS collects 1k env steps per iteration, PPO 10k, so the equal count is DexMOTS's
+    final 4k, where PPO has no evaluation yet but its first at 10k; MPC seed 0 was made before its planning
+    CPU was recorded, seed 1 after."""
+    def finish(cfg):
+        run_dir, seed = Path(cfg.run_dir), cfg.seed
+        if cfg.algo.name == "mpc":
+            return _fake_planner(run_dir, "screw_claw", 0.5 + 0.1 * seed, cfg, None if seed == 0 else 1.25)
+        _fake_finished(run_dir, "screw_claw", cfg.algo.name, 0.9, curve=(0.2 + 0.2 * seed, 0.6, 0.7), config=cfg)
+        if cfg.algo.name == "ppo":  # ten times the env steps of DexMOTS per iteration
+            for name in ("metrics.jsonl", "metrics.json"):
+                text = (run_dir / name).read_text()
+                (run_dir / name).write_text(text.replace('"env_steps": 1000', '"env_steps": 10000')
+                                            .replace('"env_steps": 2000', '"env_steps": 20000')
+                                            .replace('"env_steps": 3000', '"env_steps": 30000')
+                                            .replace('"env_steps": 4000', '"env_steps": 40000'))
+
+    methods = "methods=[dexmots,ppo,mpc]"
+    _finished_sweep(tmp_path, monkeypatch, finish, methods)
+    result = table.run_table(_table_cfg(tmp_path, methods, "report_only=true"))
+    lines = result["table"].splitlines()
+    rows = [line for line in lines if line.startswith("| Screw-top (Claw) |")]
+    assert rows[0] == "| Screw-top (Claw) | 90.0 ± 0.0 | 90.0 ± 0.0 | 55.0 ± 7.1 |"  # at equal CPU, as before
+    # at DexMOTS's 4,000 env steps: its final evaluations (100 episodes); PPO's last periodic one by then: none
+    assert ("| Screw-top (Claw) | 90.0 ± 0.0 (at 4.0k, 100 ep) | – (n=0 of 2) | 55.0 ± 7.1 (1.25 CPU s / episode, n=1 of 2) "
+            "| 4,000 (Ours, seed 0) |") in rows
+    assert "| Screw-top (Claw) | 55.0 | 1,200 | 1.25 | 0.80 |" in rows  # the planning table: the run that has it
+    assert any("not recorded" in line and "before" in line for line in lines)  # says why a cost is missing
+    csv_rows = read_csv(tmp_path / "sweep" / "runs.csv")
+    dexmots = [r for r in csv_rows if r["method"] == "dexmots"]
+    assert [(r["equal_steps_eval_env_steps"], r["equal_steps_eval_episodes"]) for r in dexmots] == [(4000, 100)] * 2
+    # a longer PPO count: PPO read at 10k from its first periodic evaluation (10 episodes)
+    from dexmots_rl.apps.table_views import add_equal_steps
+    from dexmots_rl.apps.table_writer import learning_curve
+
+    ppo = [r for r in csv_rows if r["method"] == "ppo"]
+    read = add_equal_steps([{**r, "task": "t"} for r in ppo] + [{**dexmots[0], "task": "t", "env_steps": 15_000}],
+                           lambda d: learning_curve(tmp_path / "sweep" / d))
+    assert [(r["success_at_equal_steps"], r["equal_steps_eval_env_steps"], r["equal_steps_eval_episodes"])
+            for r in read[:2]] == [(0.2, 10_000, 10), (0.4, 10_000, 10)]

@@ -210,7 +210,7 @@ def _launch(loader, master, runs) -> dict[str, str]:
 
 
 def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
-    from .table_views import equal_steps_table, planning_cost_table
+    from .table_views import NOT_RECORDED, equal_steps_table, planning_cost_table
     from .table_writer import (NO_TRAINING, action_space_table, budget_cell, budget_text, machines_text,
                                markdown_table, quoted_table, time_to_success_table)
 
@@ -233,14 +233,19 @@ def _report(spec, rows: list[dict], failures: dict, outputs: list[str]) -> str:
              "periodic and final evaluations; (reached/finished runs)):", "",
              time_to_success_table(table_rows, tasks, methods), "",
              "The same runs at an equal number of env steps per task (the fewest any trained run of the task "
-             "collected, last column): each run's last evaluation at or before it (periodic evaluations of "
-             "eval.curve_episodes episodes, or the final one), success %:", "",
+             "collected, last column, with that run): success %, mean ± s.d. over seeds, of each run's last "
+             "evaluation at or before that count, read from its curve; in brackets the env steps of the "
+             "evaluations read and their episodes (a periodic evaluation runs eval.curve_episodes episodes, the "
+             "final one eval.episodes, so a cell read from periodic ones is noisier), and n when some runs had "
+             "none by then. A method that trains nothing shows its success beside its planning CPU seconds per "
+             f"evaluation episode ({NOT_RECORDED}: runs made before the planning's CPU time was measured):", "",
              equal_steps_table(table_rows, tasks, methods), ""]
     for name, label in methods:
         if any(r["method"] == name and r["status"] == "finished" and r["stopped_by"] == NO_TRAINING
                for r in table_rows):
             lines += [f"{label} learns nothing and plans in every evaluation episode: its success beside the "
-                      "planning per episode (mean over seeds; forward sim steps, CPU and wall seconds):", "",
+                      "planning per episode (mean over seeds; forward sim steps, CPU and wall seconds; the wall "
+                      "seconds of runs sharing the cores include waiting):", "",
                       planning_cost_table(table_rows, tasks, name), ""]
     if any(spec.paper_table.get(t) for t in spec.tasks):
         lines += ["The paper's own Table 2 on the same tasks, quoted (not measured here: its simulator and hand "

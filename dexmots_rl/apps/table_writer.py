@@ -38,16 +38,17 @@ from typing import Iterable, Mapping, Sequence
 from ..algorithms.budget import NO_TRAINING
 
 __all__ = ["CSV_FIELDS", "NO_TRAINING", "action_space_runs", "action_space_table", "budget_cell", "budget_clock",
-           "budget_text", "learning_curve", "machines_text", "markdown_table", "quoted_table", "read_csv", "run_row",
-           "sweep_relative", "time_to_success", "time_to_success_table", "write_csv"]
+           "budget_text", "learning_curve", "machines_text", "markdown_table", "mean_sd_text", "quoted_table",
+           "read_csv", "run_row", "sweep_relative", "time_to_success", "time_to_success_table", "write_csv"]
 
 CSV_FIELDS = ("task", "method", "action", "seed", "experiment", "status", "success", "episodes", "wall_clock_s",
               "cpu_s", "env_steps", "time_to_90_s", "env_steps_to_90", "stopped_by", "budget_wall_clock_s",
               "budget_env_steps", "budget_cpu_s", "machine", "commit", "date", "equal_env_steps",
-              "success_at_equal_steps", "planning_sim_steps_per_episode", "planning_cpu_s_per_episode",
+              "success_at_equal_steps", "equal_steps_eval_env_steps", "equal_steps_eval_episodes",
+              "planning_sim_steps_per_episode", "planning_cpu_s_per_episode",
               "planning_wall_s_per_episode", "run_dir")
 _INTS = ("seed", "episodes", "env_steps", "env_steps_to_90", "budget_env_steps", "equal_env_steps",
-         "planning_sim_steps_per_episode")
+         "equal_steps_eval_env_steps", "equal_steps_eval_episodes", "planning_sim_steps_per_episode")
 _FLOATS = ("success", "wall_clock_s", "cpu_s", "time_to_90_s", "budget_wall_clock_s", "budget_cpu_s",
            "success_at_equal_steps", "planning_cpu_s_per_episode", "planning_wall_s_per_episode")
 DASH = "–"  # a cell without finished runs
@@ -73,8 +74,9 @@ def budget_clock(budget: Mapping) -> str:
 
 
 def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
-    """``[{"env_steps", "wall_clock_s", "cpu_s", "success"}, ...]`` in training order; ``metrics``: the run's final
-    ``metrics.json`` (read from ``run_dir`` when ``None``; absent: the periodic evaluations only)."""
+    """``[{"env_steps", "wall_clock_s", "cpu_s", "success", "episodes"}, ...]`` in training order (``episodes``: the
+    evaluation's, None where a run did not log it); ``metrics``: the run's final ``metrics.json`` (read from
+    ``run_dir`` when ``None``; absent: the periodic evaluations only)."""
     run_dir = Path(run_dir)
     at_iteration, points = {}, []
     for row in _jsonl(run_dir / "metrics.jsonl"):
@@ -83,7 +85,8 @@ def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
         elif "eval_success_rate" in row and row.get("iteration") in at_iteration:
             train = at_iteration[row["iteration"]]
             points.append({"env_steps": train["env_steps"], "wall_clock_s": train["wall_clock_s"],
-                           "cpu_s": train.get("cpu_s"), "success": row["eval_success_rate"]})
+                           "cpu_s": train.get("cpu_s"), "success": row["eval_success_rate"],
+                           "episodes": row.get("eval_episodes")})
     if metrics is None and (run_dir / "metrics.json").is_file():
         try:
             metrics = json.loads((run_dir / "metrics.json").read_text())
@@ -91,7 +94,8 @@ def learning_curve(run_dir, metrics: dict | None = None) -> list[dict]:
             metrics = None
     if metrics and "success_rate" in metrics:
         points.append({"env_steps": metrics.get("env_steps"), "wall_clock_s": metrics.get("train_wall_clock_s"),
-                       "cpu_s": metrics.get("train_cpu_s"), "success": metrics["success_rate"]})
+                       "cpu_s": metrics.get("train_cpu_s"), "success": metrics["success_rate"],
+                       "episodes": metrics.get("episodes")})
     return points
 
 
@@ -175,6 +179,12 @@ def _grouped(rows: Iterable[dict], value: str) -> dict[tuple[str, str], list[flo
 
 def _mean_sd(values: Sequence[float]) -> tuple[float, float | None]:
     return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else None)
+
+
+def mean_sd_text(values: Sequence[float], scale: float = 1.0) -> str:
+    """``values`` (times ``scale``: 100 for a success rate in %) as ``mean ± s.d.``, one value alone."""
+    mean, sd = _mean_sd([scale * v for v in values])
+    return f"{mean:.1f}" + (f" ± {sd:.1f}" if sd is not None else "")
 
 
 def _header(methods, budget_column: bool = False) -> list[str]:
@@ -284,9 +294,8 @@ def markdown_table(rows: Iterable[dict], tasks: Sequence[tuple[str, str]], metho
             if not values:
                 cells.append(DASH)
                 continue
-            mean, sd = stats[(task, method)] = _mean_sd(values)
-            cell = f"{100 * mean:.1f}" + (f" ± {100 * sd:.1f}" if sd is not None else "")
-            cells.append(cell + (f" (n={len(values)})" if seeds is not None and len(values) < seeds else ""))
+            stats[(task, method)] = _mean_sd(values)
+            cells.append(mean_sd_text(values, 100) + (f" (n={len(values)})" if seeds is not None and len(values) < seeds else ""))
         lines.append(f"| {label} | " + " | ".join(cells) + tail(task) + " |")
     if len(tasks) > 1:
         cells = []
@@ -351,9 +360,8 @@ def action_space_table(rows: Iterable[dict], task: str, methods: Sequence[tuple[
             if not done:
                 cells.append(DASH)
                 continue
-            mean, sd = _mean_sd([100 * float(r["success"]) for r in done])
-            cell = " / ".join(f"{100 * float(r['success']):.0f}" for r in done) + f": {mean:.1f}"
-            cell += f" ± {sd:.1f}" if sd is not None else ""
+            cell = (" / ".join(f"{100 * float(r['success']):.0f}" for r in done) + ": "
+                    + mean_sd_text([float(r["success"]) for r in done], 100))
             times = [float(r["time_to_90_s"]) for r in done if r.get("time_to_90_s") is not None]
             cells.append(cell + (f" ({statistics.fmean(times):.0f} s, {len(times)}/{len(done)})" if times else ""))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
