@@ -86,3 +86,19 @@ def test_a_run_saved_before_a_task_field_was_added_is_still_finished(tmp_path, f
     saved.write_text(OmegaConf.to_yaml(config))
     result = table.run_table(_table_cfg(tmp_path, *spec))
     assert (result["launched"], result["skipped"]) == (0, 1)
+
+
+def test_a_run_saved_before_an_algo_field_was_added_is_still_finished_at_that_fields_old_value(tmp_path,
+                                                                                               fake_trainer):
+    spec = ("methods=[dexmots]", *REAL)
+    table.run_table(_table_cfg(tmp_path, *spec))
+    saved = tmp_path / "runs" / "screw_claw" / "dexmots" / "vi" / "seed0" / "config.yaml"
+    config = OmegaConf.load(saved)
+    for key in ("init_stiffness", "horizon_clip_target", "horizon_clip_lr", "num_envs"):
+        del config.algo[key]  # what an AHAC run made before these keys existed saved
+    saved.write_text(OmegaConf.to_yaml(config))
+    result = table.run_table(_table_cfg(tmp_path, *spec))
+    assert (result["launched"], result["skipped"]) == (0, 1)
+    # a spec that sets one of them to another value than those runs had is another config: run again
+    result = table.run_table(_table_cfg(tmp_path, *spec, 'run_overrides=["algo.init_stiffness=0.9"]'))
+    assert (result["launched"], result["skipped"]) == (1, 0)

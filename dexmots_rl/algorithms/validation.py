@@ -21,13 +21,19 @@ from typing import Any, Optional
 
 from ..envs.fields import check_value, rule
 
-__all__ = ["ALGO_FIELDS", "RUN_FIELDS", "validate_run_config"]
+__all__ = ["ALGO_ADDED_WITH_THE_OLD_BEHAVIOUR", "ALGO_FIELDS", "RUN_FIELDS", "validate_run_config"]
 
 _POSITIVE = rule(gt=0)
 _NON_NEGATIVE = rule(ge=0)
 _SHARE = rule(ge=0, le=1)
 _WIDTHS = (tuple[int, ...], _POSITIVE)  # MLP hidden-layer widths
 _ACTIVATIONS = rule(choices=("tanh", "relu", "elu"))
+
+#: ``algo`` keys added after runs were saved -> the value that is what those runs did: a saved config without
+#: one is today's config with that value (dexmots-table reuses such a finished run, and runs again one whose
+#: spec sets another value)
+ALGO_ADDED_WITH_THE_OLD_BEHAVIOUR: dict[str, Any] = {"num_envs": None, "init_stiffness": 0.0,
+                                                     "horizon_clip_target": None, "horizon_clip_lr": 20.0}
 
 #: key -> (type, rule) of every algorithm's ``algo`` keys; a key absent from a config is skipped (e.g. AHAC-only
 #: keys under SHAC); keys shared by several methods mean the same everywhere

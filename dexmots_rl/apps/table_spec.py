@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from ..envs import ACTION_TYPES
+from ..algorithms.validation import ALGO_ADDED_WITH_THE_OLD_BEHAVIOUR
 from ..envs.config import ADDED_WITH_THE_OLD_BEHAVIOUR
 
 __all__ = ["IDENTITY_IGNORED", "Method", "Run", "SweepSpec", "SweepSpecError", "finished_metrics", "replaced_runs",
@@ -356,13 +357,23 @@ def run_identity(config) -> dict[str, Any]:
     return identity
 
 
-def _stored_identity(run_dir: Path) -> dict | None:
+def _stored_identity(run: Run) -> dict | None:
+    """The identity of ``run``'s saved ``config.yaml`` with the fields it predates filled in (task fields: at
+    ``run.identity``'s value; algo fields: at the value those runs had)."""
     from omegaconf import OmegaConf
 
     try:
-        return run_identity(OmegaConf.load(run_dir / "config.yaml"))
+        stored = run_identity(OmegaConf.load(run.run_dir / "config.yaml"))
     except Exception:  # absent, torn or not YAML: not this spec's run  # noqa: BLE001
         return None
+    identity = run.identity or {}
+    for section, added in (("task", {k: v for k, v in (identity.get("task") or {}).items()
+                                     if k in ADDED_WITH_THE_OLD_BEHAVIOUR}),
+                           ("algo", {k: v for k, v in ALGO_ADDED_WITH_THE_OLD_BEHAVIOUR.items()
+                                     if k in (identity.get("algo") or {})})):
+        if isinstance(stored.get(section), dict):
+            stored[section] = {**added, **stored[section]}
+    return stored
 
 
 def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
@@ -386,10 +397,7 @@ def finished_metrics(run: Run) -> dict | None:
     if not isinstance(rate, (int, float)) or not 0 <= rate <= 1 or not isinstance(episodes, int) or episodes < 1:
         return None
     if run.identity is not None:
-        stored = _stored_identity(run.run_dir)
-        if stored is not None and isinstance(stored.get("task"), dict):  # fields the saved config predates
-            task = run.identity.get("task") or {}
-            stored["task"] = {**{k: task[k] for k in ADDED_WITH_THE_OLD_BEHAVIOUR if k in task}, **stored["task"]}
+        stored = _stored_identity(run)
         if stored != run.identity:
             differs = "no readable config.yaml" if stored is None else ", ".join(_differences(stored, run.identity))
             log.debug("%s: finished with another config (%s): not this sweep's run", run.name, differs)
@@ -404,7 +412,7 @@ def replaced_runs(runs: Sequence[Run]) -> dict[str, str]:
     for run in runs:
         if run.identity is None or not (run.run_dir / "metrics.json").is_file():
             continue
-        stored = _stored_identity(run.run_dir)
+        stored = _stored_identity(run)
         if stored is not None and stored != run.identity:
             out[run.name] = ", ".join(_differences(stored, run.identity)[:5])
     return out
