@@ -1,13 +1,15 @@
-"""Two checkouts of the library on one host: the same dynamics (any task), and the speed of the knob and cube scenes.
+"""Two checkouts of the library on one host: the same dynamics and the same speed, any task.
 
     python benchmarks/compare_checkouts.py --old ../dexmots_rl-before --new . --rounds 3
+    python benchmarks/compare_checkouts.py --old ../dexmots_rl-before --new . --tasks spray_bottle drawer
 
 For each checkout (its repository root, put first on ``PYTHONPATH`` of a child process that runs this file in
 ``--worker`` mode), every task is rolled out for 60 steps from seed 0 with the same seeded random actions in 8
 worlds, and the states, rewards and success flags of the two are compared (``max_abs_diff``; 0.0: bit-identical).
 Speed is CPU time, not wall-clock: the process's user + system seconds per env step at 256 worlds in contact
 (one simulator and one torch thread; the best of 5 chunks of ``dexmots-bench throughput``'s forward and forward +
-backward), so other jobs sharing the cores move it little. Rounds alternate the checkouts. Prints one JSON object.
+backward, from the same bench state: a tool task's from its pre-grasp), so other jobs sharing the cores move it
+little. Rounds alternate the checkouts. Prints one JSON object.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ def worker(tasks, out_path: str) -> None:
     import torch
 
     torch.set_num_threads(1)
-    from dexmots_rl.apps.bench_setup import bench_task, bench_tasks, load_task_scene
+    from dexmots_rl.apps.bench_setup import bench_env, bench_task, bench_tasks, load_task_scene
     from dexmots_rl.apps.bench_throughput import SimBench
     from dexmots_rl.envs import make_env, task_contact
 
@@ -45,10 +47,12 @@ def worker(tasks, out_path: str) -> None:
                 kept[name].append(td[key].clone())
             td = td["next"]
         rollouts[task] = {name: torch.stack(values) for name, values in kept.items()}
-        if task not in bench_tasks():  # a tool task: its speed is dexmots-bench throughput --task <task>
-            continue
-        bench = SimBench(*load_task_scene(task)[:1], bench_task(task), 256, "cpu", 16, 20, 16, "state",
-                         task_contact(task))
+        if task in bench_tasks():
+            scene, poses, law = load_task_scene(task)[0], bench_task(task), task_contact(task)
+        else:  # a tool task: dexmots-bench throughput's bench state
+            bench_scene = bench_env(task)
+            scene, poses, law = bench_scene.sim.scene, bench_scene.bench_poses(), bench_scene.sim.contact
+        bench = SimBench(scene, poses, 256, "cpu", 16, 20, 16, "state", law)
         for kind, chunk in (("fwd", bench.forward_chunk), ("fwdbwd", bench.forward_backward_chunk)):
             chunk()
             best = 0.0

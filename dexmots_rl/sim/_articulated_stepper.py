@@ -33,7 +33,7 @@ TORCH_FIELDS = ("hq", "hqd", "oq", "oqd", "wrench", "normal", "tau", "q_target",
                 "pose", "tips", "joint_wrench")
 CONTROL_FIELDS = TORCH_FIELDS[6:12]  # the step's inputs after the state, in Trajectory.load's order
 # the warp-only buffers, by group (ArticulatedTrajectory.__init__ documents each)
-WARP_GROUPS = ("frames", "links", "table", "hand", "total", "scratch", "final", "variant")
+WARP_GROUPS = ("frames", "links", "table", "hand", "total", "scratch", "solve", "final", "variant")
 
 
 @dataclasses.dataclass
@@ -54,7 +54,8 @@ class ArticulatedTrajectory:
         self.sim, self.save = sim, save
         n, steps, z = sim.num_worlds, sim.substeps, sim._zeros
         self.n, self.steps = n, steps
-        k, tree = sim.kernels, sim.tree
+        k, h, tree = sim.kernels, sim.hand_kernels, sim.tree
+        fingers = sim.scene.num_fingers
         nu, nb, nparts = sim.nu, tree.num_bodies, max(tree.num_parts, 1)
         rows, sub_rows = (steps + 1) * n, steps * n
         # torch-visible buffers: the state trajectories (hand, object), the running means over substeps (the
@@ -86,16 +87,19 @@ class ArticulatedTrajectory:
         self.total = [new(k.vec3, nb), new(k.vec3, nb)]
         self.scratch = [new(k.vec3, nb), new(k.mat33, nb), new(k.vec3, nb), new(k.vec3, nb), new(k.vec3, nb),
                         new(k.vec3, nb), new(k.vec3, nparts), new(k.vec3, nparts)]
+        # each finger's solve, kept for the reverse pass: (M + diag)^-1 and the joint accelerations
+        self.solve = [new(h.matJ, fingers), new(h.vecJ, fingers)]
         self.final_frames = [new(k.vec3, nb, n), new(k.mat33, nb, n), new(k.vec3, nb, n), new(k.vec3, nb, n),
                              new(k.vec3, nb, n)]
         # each world's object variant this step (the packed parameters' last column with K > 1; else zeros)
         self.variant = torch.zeros(n, dtype=torch.int32, device=sim.torch_device)
         self._warp = dict(zip(WARP_GROUPS, [self.frames, self.links, self.table, self.hand, self.total, self.scratch,
-                                            self.final_frames, [wp.from_torch(self.variant)]]))
+                                            self.solve, self.final_frames, [wp.from_torch(self.variant)]]))
         self.accumulated = self.table + self.hand  # the contact kernels add into these
         self.blocks = world_blocks(n, sim.device)
         self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
         self._reverse_cmds = None  # per block, the recorded adjoint launches (at the first backward)
+        self._residual_buffers = []  # their hand_residual launches' outputs and seeds
         self.adj_torch: dict[str, torch.Tensor] | None = None  # adjoints of _torch, by name (the simulator's)
         self.adj_warp: dict[str, list] | None = None  # adjoints of _warp, by group
         self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
@@ -125,7 +129,7 @@ class ArticulatedTrajectory:
             hq, hqd, oq, oqd = t["hq"], t["hqd"], t["oq"], t["oqd"]
             wrench, normal, joint_wrench, pose, tips = t["wrench"], t["normal"], t["joint_wrench"], t["pose"], t["tips"]
             frames, links, table, hand = g["frames"], g["links"], g["table"], g["hand"]
-            total, scratch, final = g["total"], g["scratch"], g["final"]
+            total, scratch, solve, final = g["total"], g["scratch"], g["solve"], g["final"]
             variant = g["variant"][0][lo:hi]
 
             def rows(arr, s):  # substep s's rows of this block
@@ -158,7 +162,8 @@ class ArticulatedTrajectory:
                 out.append((k.substep, dim, [model, variant, state[2], state[3], block[4], block[5], *tot, *tb[2:], dt,
                                              *[rows(x, s) for x in scratch], nxt[2], nxt[3]]))
                 out.append((h.hand_substep, (dim, sim.scene.num_fingers),
-                            [hand_model, state[0], state[1], *block[:4], gen, *lk, dt, nxt[0], nxt[1]]))
+                            [hand_model, state[0], state[1], *block[:4], gen, *lk, dt, nxt[0], nxt[1],
+                             *[rows(x, s) for x in solve]]))
             last = [rows(x, self.steps) for x in (hq, oq, oqd)]
             fin = [x[lo:hi] for x in final]
             out.append((k.frames, dim, [model, variant, last[1], last[2], *fin]))
@@ -176,9 +181,21 @@ class ArticulatedTrajectory:
         forward = launches(arrays, sim.model, sim.hand_model, sim.palm_model, 1)
         palm_adjoint = None if sim.palm_kernels is None else sim.palm_kernels.Model()
         adjoint = launches(adjoint_arrays, k.Model(), h.Model(), palm_adjoint, 0)  # null model adjoints
+        # the hand's solve has no generated adjoint: hand_residual's gradient (seeded with ones) is its adjoint,
+        # from its inputs, its saved solve and the adjoints of its outputs (read as values)
+        # (kept by the trajectory: a recorded launch holds its arrays' addresses, not the arrays)
+        residual = wp.zeros((dim, sim.scene.num_fingers), dtype=wdt, device=sim.device)
+        seed = wp.full((dim, sim.scene.num_fingers), wdt(1.0), dtype=wdt, device=sim.device)
+        self._residual_buffers.extend([residual, seed])
         cmds = []
         for (kernel, d, args), (_, _, adj_args) in zip(reversed(forward), reversed(adjoint)):
             adj_args = [x if isinstance(x, wp.array) or hasattr(x, "_cls") else type(x)(0) for x in adj_args]
+            if kernel is h.hand_substep:
+                (inputs, _, solved), (adj_inputs, adj_outputs, adj_solved) = (
+                    (a[:12], a[12:14], a[14:]) for a in (args, adj_args))
+                kernel = h.hand_residual
+                args = [*inputs, *solved, *adj_outputs, residual]
+                adj_args = [*adj_inputs, *adj_solved, *adj_outputs, seed]
             cmds.append(wp.launch(kernel, dim=d, inputs=args, adj_inputs=adj_args, adjoint=True, device=sim.device,
                                   record_cmd=True))
         return [prepared(cmd) for cmd in cmds]

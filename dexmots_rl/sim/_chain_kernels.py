@@ -12,7 +12,7 @@ import dataclasses
 import warp as wp
 
 from ._fused_model import FusedSpec
-from ._kernel_funcs import build_funcs
+from ._kernel_funcs import build_funcs, unit_vector
 from ._model import HINGE
 
 __all__ = ["ChainFuncs", "build_chain"]
@@ -41,11 +41,7 @@ def build_chain(t: FusedSpec) -> ChainFuncs:
     funcs = build_funcs(dtype)
     fixed_vec3, fixed_mat33, fixed = funcs.fixed_vec3, funcs.fixed_mat33, funcs.fixed
 
-    @wp.func
-    def unit_j(j: int):
-        e = vecJ()
-        e[j] = dtype(1.0)
-        return e
+    unit_j = unit_vector(J, dtype)
 
     @wp.func
     def jac_col(jt: wp.int32, a: vec3, o: vec3, p: vec3):

@@ -23,7 +23,7 @@ import warp as wp
 
 from ._constants import LIMIT_WIDTH
 from ._finger_contact_kernels import build_finger_contact
-from ._kernel_funcs import build_funcs
+from ._kernel_funcs import build_funcs, unit_vector
 
 __all__ = ["build_hand_kernels"]
 
@@ -36,11 +36,14 @@ class HandKernels:
     Model: type  # the hand's model struct (a wp.struct)
     link_frames: object  # wp.Kernel: every link's frame and joint axis
     finger_contact: object  # wp.Kernel: each finger link's contact with the object's bodies
-    hand_substep: object  # wp.Kernel: each finger's implicit solve
+    hand_substep: object  # wp.Kernel: each finger's implicit solve (no generated adjoint)
+    hand_residual: object  # wp.Kernel: hand_substep's adjoint, as the gradient of a scalar (seeded with ones)
     observe: object  # wp.Kernel: body poses and fingertips
     geom_distance: object  # wp.func: a point's signed distance to a geom (probe kernels)
     vec3: type
     mat33: type
+    vecJ: type  # a finger's joints
+    matJ: type
     dtype: type
 
 
@@ -108,25 +111,75 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
     fixed, fixed_vec3, fixed_mat33 = funcs.fixed, funcs.fixed_vec3, funcs.fixed_mat33  # model reads, no adjoint
     joint_friction, joint_drive, write_pose = funcs.joint_friction, funcs.joint_drive, funcs.write_pose
 
-    @wp.func
-    def unit_j(k: int):
-        e = vecJ()
-        e[k] = dtype(1.0)
-        return e
+    unit_j = unit_vector(J, dtype)
 
     contact = build_finger_contact(Model, dtype, J, P, B, G)
 
     if J == 1:  # warp's inverse starts at 2 x 2
 
         @wp.func
-        def solve_jj(A: matJ, b: vecJ):
+        def inverse_jj(A: matJ):
+            return matJ(dtype(1.0) / A[0, 0])
+
+        @wp.func
+        def apply_inverse(A: matJ, A_inv: matJ, b: vecJ):
             return vecJ(b[0] / A[0, 0])
 
     else:
 
         @wp.func
-        def solve_jj(A: matJ, b: vecJ):
-            return wp.inverse(A) * b
+        def inverse_jj(A: matJ):
+            return wp.inverse(A)
+
+        @wp.func
+        def apply_inverse(A: matJ, A_inv: matJ, b: vecJ):
+            return A_inv * b
+
+    @wp.func
+    def fixed_2d(a: wp.array2d(dtype=dtype), w: int, i: int):
+        return a[w, i]
+
+    @wp.func_grad(fixed_2d)
+    def adj_fixed_2d(a: wp.array2d(dtype=dtype), w: int, i: int, adj_ret: dtype):
+        return  # a value the reverse pass reads as a constant (the step's saved solve, the outputs' adjoints)
+
+    @wp.func
+    def fixed_inverse(a: wp.array2d(dtype=matJ), w: int, f: int):
+        return a[w, f]
+
+    @wp.func_grad(fixed_inverse)
+    def adj_fixed_inverse(a: wp.array2d(dtype=matJ), w: int, f: int, adj_ret: matJ):
+        return
+
+    @wp.func
+    def fixed_accel(a: wp.array2d(dtype=vecJ), w: int, f: int):
+        return a[w, f]
+
+    @wp.func_grad(fixed_accel)
+    def adj_fixed_accel(a: wp.array2d(dtype=vecJ), w: int, f: int, adj_ret: vecJ):
+        return
+
+    @wp.func
+    def joint_terms(m: Model, w: int, f: int, qf: vecJ, qdf: vecJ, tau: wp.array2d(dtype=dtype),
+                    q_target: wp.array2d(dtype=dtype), kp: wp.array2d(dtype=dtype), kd: wp.array2d(dtype=dtype),
+                    gen: wp.array2d(dtype=dtype), dt: dtype):
+        """A finger's joint-space forces but the bias (feed-forward, drive, damping, friction, range stops,
+        contact; N m) and the diagonal its implicit terms add to the mass matrix (armature, dt damping, the
+        drive's gain)."""
+        rhs = vecJ()
+        diag = vecJ()
+        for k in range(J):
+            i = f * J + k
+            qk = qf[k]
+            qdk = qdf[k]
+            drive, gain = joint_drive(kp[w, i], kd[w, i], q_target[w, i], qk, qdk, dt, fixed(m.effort, i))
+            e = unit_j(k)
+            diag = diag + (fixed(m.armature, i) + dt * fixed(m.damping, i) + gain) * e
+            lim, _ = range_stop(fixed(m.limit_ke, i), fixed(m.lower, i) - qk, qk - fixed(m.upper, i),
+                                dtype(LIMIT_WIDTH))
+            fric = joint_friction(fixed(m.friction, i), qdk)
+            rhs = rhs + (tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[w, i]) * e
+        return rhs, diag
 
     @wp.kernel(module="unique", enable_backward=True)
     def link_frames(
@@ -149,7 +202,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             link_x[w, i] = x
             link_R[w, i] = R
 
-    @wp.kernel(module="unique", enable_backward=True)
+    # no generated adjoint: hand_residual's is this kernel's (the adjoint of its solve, without its mass matrix)
+    @wp.kernel(module="unique", enable_backward=False)
     def hand_substep(
         m: Model,
         hq: wp.array2d(dtype=dtype),  # [N, F*J] in
@@ -165,6 +219,8 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         dt: dtype,
         hq_out: wp.array2d(dtype=dtype),  # [N, F*J]
         hqd_out: wp.array2d(dtype=dtype),  # [N, F*J]
+        solve_inv: wp.array2d(dtype=matJ),  # [N, F] out: (M + diag)^-1, for hand_residual
+        accel: wp.array2d(dtype=vecJ),  # [N, F] out: the joint accelerations (rad/s^2), for hand_residual
     ):
         w, f = wp.tid()
         om = vec3()
@@ -205,26 +261,95 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             ac = acc + wp.cross(al, c - x) + wp.cross(om, wp.cross(om, c - x))
             M = M + ml * wp.transpose(Jv) * Jv + wp.transpose(Jw) * Iw * Jw
             bias = bias + wp.transpose(Jv) * (ml * ac) + wp.transpose(Jw) * (Iw * al + wp.cross(om, Iw * om))
-        rhs = vecJ()
-        diag = matJ()
-        for k in range(J):
-            i = f * J + k
-            qk = qf[k]
-            qdk = qdf[k]
-            drive, gain = joint_drive(kp[w, i], kd[w, i], q_target[w, i], qk, qdk, dt, fixed(m.effort, i))
-            e = unit_j(k)
-            diag = diag + (fixed(m.armature, i) + dt * fixed(m.damping, i) + gain) * wp.outer(e, e)
-            lim, _ = range_stop(fixed(m.limit_ke, i), fixed(m.lower, i) - qk, qk - fixed(m.upper, i),
-                                dtype(LIMIT_WIDTH))
-            fric = joint_friction(fixed(m.friction, i), qdk)
-            rhs = rhs + (tau[w, i] + drive - fixed(m.damping, i) * qdk - fric + lim + gen[w, i]) * e
+        rhs, diag = joint_terms(m, w, f, qf, qdf, tau, q_target, kp, kd, gen, dt)
         rhs = rhs - bias
-        qdd = solve_jj(M + diag, rhs)
+        for k in range(J):
+            M[k, k] = M[k, k] + diag[k]
+        M_inv = inverse_jj(M)
+        qdd = apply_inverse(M, M_inv, rhs)
+        solve_inv[w, f] = M_inv
+        accel[w, f] = qdd
         for k in range(J):
             i = f * J + k
             v_new = qdf[k] + dt * qdd[k]
             hqd_out[w, i] = v_new
             hq_out[w, i] = qf[k] + dt * v_new
+
+    @wp.kernel(module="unique", enable_backward=True)
+    def hand_residual(
+        m: Model,
+        hq: wp.array2d(dtype=dtype),  # hand_substep's inputs, as it read them
+        hqd: wp.array2d(dtype=dtype),
+        tau: wp.array2d(dtype=dtype),
+        q_target: wp.array2d(dtype=dtype),
+        kp: wp.array2d(dtype=dtype),
+        kd: wp.array2d(dtype=dtype),
+        gen: wp.array2d(dtype=dtype),
+        link_x: wp.array2d(dtype=vec3),
+        link_R: wp.array2d(dtype=mat33),
+        link_a: wp.array2d(dtype=vec3),
+        dt: dtype,
+        solve_inv: wp.array2d(dtype=matJ),  # [N, F] hand_substep's
+        accel: wp.array2d(dtype=vecJ),  # [N, F] hand_substep's
+        adj_hq_out: wp.array2d(dtype=dtype),  # [N, F*J] the adjoints of hand_substep's outputs
+        adj_hqd_out: wp.array2d(dtype=dtype),
+        residual: wp.array2d(dtype=dtype),  # [N, F] out; its adjoint launch is seeded with ones
+    ):
+        """hand_substep's adjoint, as the gradient of a scalar: with qdd = A^-1 b (A = M + diag, b = rhs - bias),
+        the adjoint of the inputs theta is y^T (db/dtheta - dA/dtheta qdd), y = A^-T adj_qdd (one more product
+        with the saved inverse), i.e. the gradient of y . (b - A qdd) at fixed y and qdd. y^T (M qdd + bias) is
+        inverse dynamics contracted with y, a sum over links of the com's and the link's velocity under y
+        (J_v y, J_w y, running sums) dotted with the link's force and moment at qdd: O(J) products of 3-vectors
+        where the forward solve builds J x J matrices, and their adjoints as cheap. Plus the direct terms of
+        q' = q + dt qd', qd' = qd + dt qdd."""
+        w, f = wp.tid()
+        A_inv = fixed_inverse(solve_inv, w, f)
+        qdd = fixed_accel(accel, w, f)
+        adj_q = vecJ()
+        adj_v = vecJ()  # of qd' = qd + dt qdd
+        qf = vecJ()
+        qdf = vecJ()
+        for k in range(J):
+            i = f * J + k
+            adj_q = adj_q + fixed_2d(adj_hq_out, w, i) * unit_j(k)
+            adj_v = adj_v + (fixed_2d(adj_hqd_out, w, i) + dt * fixed_2d(adj_hq_out, w, i)) * unit_j(k)
+            qf = qf + hq[w, i] * unit_j(k)
+            qdf = qdf + hqd[w, i] * unit_j(k)
+        y = wp.transpose(A_inv) * (dt * adj_v)
+        rhs, diag = joint_terms(m, w, f, qf, qdf, tau, q_target, kp, kd, gen, dt)
+        total = wp.dot(adj_q, qf) + wp.dot(adj_v, qdf) + wp.dot(y, rhs)
+        om = vec3()
+        al = vec3()
+        acc = -m.gravity
+        o_prev = fixed_vec3(m.base_pos, f)
+        wy = vec3()  # J_w y: the angular velocity the joints get under velocities y
+        wq = vec3()  # J_w qdd
+        sy = vec3()  # sum of y_k a_k x o_k, so that J_v y at a point p is wy x p - sy
+        sq = vec3()
+        for k in range(J):
+            i = f * J + k
+            x = link_x[w, i]
+            R = link_R[w, i]
+            a = link_a[w, i]
+            lever = x - o_prev
+            acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
+            al = al + wp.cross(om, a * qdf[k])
+            om = om + a * qdf[k]
+            o_prev = x
+            wy = wy + a * y[k]
+            wq = wq + a * qdd[k]
+            sy = sy + wp.cross(a, x) * y[k]
+            sq = sq + wp.cross(a, x) * qdd[k]
+            c = x + R * fixed_vec3(m.com, i)
+            I = fixed_mat33(m.inertia, i)
+            ac = acc + wp.cross(al, c - x) + wp.cross(om, wp.cross(om, c - x))
+            force = fixed(m.mass, i) * (wp.cross(wq, c) - sq + ac)
+            Iom = R * (I * (wp.transpose(R) * om))
+            moment = R * (I * (wp.transpose(R) * (wq + al))) + wp.cross(om, Iom)
+            total = total - wp.dot(wp.cross(wy, c) - sy, force) - wp.dot(wy, moment)
+        for k in range(J):
+            total = total - y[k] * diag[k] * qdd[k]
+        residual[w, f] = total
 
     @wp.kernel(module="unique", enable_backward=True)
     def observe(
@@ -251,5 +376,5 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             write_pose(pose, w, F * J + b, body_x[w, b], body_R[w, b])
 
     return HandKernels(Model=Model, link_frames=link_frames, finger_contact=contact.finger_contact,
-                       hand_substep=hand_substep, observe=observe, geom_distance=contact.geom_distance, vec3=vec3,
-                       mat33=mat33, dtype=dtype)
+                       hand_substep=hand_substep, hand_residual=hand_residual, observe=observe,
+                       geom_distance=contact.geom_distance, vec3=vec3, mat33=mat33, vecJ=vecJ, matJ=matJ, dtype=dtype)

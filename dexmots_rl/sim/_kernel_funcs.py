@@ -22,7 +22,7 @@ import warp as wp
 
 from ._constants import FRICTION_VELOCITY
 
-__all__ = ["KernelFuncs", "build_funcs"]
+__all__ = ["KernelFuncs", "build_funcs", "unit_vector"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +49,22 @@ class KernelFuncs:
     box_distance: object
     trilinear: object
     grid_distance: object
+
+
+@functools.lru_cache(maxsize=None)
+def unit_vector(length: int, float_type):
+    """``unit(k)``, a wp.func: the k-th unit vector of ``length`` elements of ``float_type``. Differentiable code
+    builds a vector element by element as a sum of these (an element assigned in place has no adjoint)."""
+    dtype = float_type
+    vecn = wp.types.vector(int(length), dtype)
+
+    @wp.func
+    def unit(k: int):
+        e = vecn()
+        e[k] = dtype(1.0)
+        return e
+
+    return unit
 
 
 @functools.lru_cache(maxsize=None)

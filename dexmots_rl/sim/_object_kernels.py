@@ -27,7 +27,7 @@ import warp as wp
 
 from ._contact_sum_kernels import build_sum_contacts
 from ._joint_friction import build_joint_friction
-from ._kernel_funcs import build_funcs
+from ._kernel_funcs import build_funcs, unit_vector
 from ._surface_kernels import build_surface_contact
 
 __all__ = ["build_object_kernels"]
@@ -128,12 +128,7 @@ def build_object_kernels(float_type, num_bodies: int, free: bool, table: bool):
             scale = mass / nominal
         return scale
 
-    @wp.func
-    def unit_p(k: int):
-        e = vecP()
-        e[k] = dtype(1.0)
-        return e
-
+    unit_p = unit_vector(NPV, dtype)
     joint_accelerations = build_joint_friction(dtype, NP, vecP, matPP, unit_p)
 
     @wp.kernel(module="unique", enable_backward=True)
