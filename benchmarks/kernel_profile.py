@@ -2,6 +2,7 @@
 
     python benchmarks/kernel_profile.py --task allegro_rotate --num-envs 256 --seconds 15
     python benchmarks/kernel_profile.py --task allegro_rotate --reverse --addresses 30   # the reverse pass
+    python benchmarks/kernel_profile.py --task spray_bottle --kernel finger_contact --reverse   # a tool scene's
 
 Needs Linux ``perf`` (``apt-get install linux-perf``) and binutils; runs on CPU with one simulator thread.
 
@@ -97,31 +98,37 @@ def main() -> None:
                     help="also print the N hottest instructions with their inline chains")
     ap.add_argument("--reverse", action="store_true",
                     help="profile the reverse pass (the substeps' adjoint launches) instead of the forward step")
+    ap.add_argument("--kernel", default="substep",
+                    help="the kernel whose module is mapped (a tool scene's: finger_contact, hand_residual, "
+                         "substep, ...); samples in the others count as outside the module")
     args = ap.parse_args()
     os.environ["DEXMOTS_CPU_THREADS"] = "1"
     import warp as wp
 
     wp.config.cpu_compiler_flags = LINE_TABLES  # before the kernels are built
-    from dexmots_rl.apps.bench_setup import bench_task, load_task_scene
+    from dexmots_rl.apps.bench_setup import bench_env
     from dexmots_rl.apps.bench_throughput import SimBench
-    from dexmots_rl.envs import task_contact
 
-    scene, _ = load_task_scene(args.task)
-    bench = SimBench(scene, bench_task(args.task), args.num_envs, "cpu", 16, 30, 10, contact=task_contact(args.task))
-    module = bench.sim.kernels.substep.module
+    env = bench_env(args.task)  # dexmots-bench throughput's bench state
+    bench = SimBench(env.sim.scene, env.bench_poses(), args.num_envs, "cpu", 16, 30, 10, contact=env.sim.contact)
+    kernel = next(getattr(space, args.kernel) for space in [bench.sim.kernels, *getattr(bench.sim, "more_kernels", [])]
+                  if hasattr(space, args.kernel))
+    module = kernel.module
+    chunk, what = bench.forward_chunk, "forward"
+    if args.reverse:
+        chunk, what = bench.reverse_chunk(), "reverse pass"
+    chunk()  # loads every module the timed chunks run (an adjoint's at its first reverse pass)
     cache = wp.config.kernel_cache_dir
     objs = sorted(glob.glob(os.path.join(cache, f"wp_{module.name}_*", "*.o")), key=os.path.getmtime)
     if not objs:
         raise RuntimeError(f"no object file of {module.name} under {cache}")
     obj = objs[-1]
     cpp = open(glob.glob(os.path.join(os.path.dirname(obj), "*.cpp"))[0]).read().splitlines()
-    base = _section_base(obj, ".ltext", "finger_step_0")
+    base = _section_base(obj, ".ltext", "finger_step_0" if args.kernel == "substep" and "finger_step_0" in
+                         _run("nm", obj) else args.kernel)
     size = int(next(line.split()[2] for line in _run("objdump", "-h", obj).splitlines()
                     if line.split()[1:2] == [".ltext"]), 16)
 
-    chunk, what = bench.forward_chunk, "forward"
-    if args.reverse:
-        chunk, what = bench.reverse_chunk(), "reverse pass"
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "perf.data")
         perf = subprocess.Popen(["perf", "record", "-F", "4000", "-p", str(os.getpid()), "-o", data],

@@ -111,6 +111,147 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
     def adj_nearest_geom(m: Model, v: int, b: int, pl: vec3, reach: dtype, adj_ret: int):
         pass  # an index: nothing to differentiate (the reverse pass skips the G distances' adjoints)
 
+    # The contact of one sphere and of one link, each a function whose replay does nothing: warp's adjoint of a
+    # loop replays its body's forward before each iteration's adjoint, and of a loop in a loop the inner body
+    # again, so in the kernel's adjoint a sphere's forward work ran three times (the kernel's forward section,
+    # the link loop's replay, the sphere loop's). They return nothing (their results are atomic adds), so an
+    # empty replay leaves the adjoint exact; each function's own adjoint recomputes its forward once.
+    @wp.func(inline=True)
+    def sphere_contact(m: Model, w: int, v: int, s: int, f: int, k_link: int, x: vec3, R: mat33, vx: vec3,
+                       om: vec3, rad: dtype, params: wp.array2d(dtype=dtype), link_x: wp.array2d(dtype=vec3),
+                       link_a: wp.array2d(dtype=vec3), body_x: wp.array2d(dtype=vec3),
+                       body_R: wp.array2d(dtype=mat33), body_c: wp.array2d(dtype=vec3),
+                       body_v: wp.array2d(dtype=vec3), body_w: wp.array2d(dtype=vec3), gen: wp.array2d(dtype=dtype),
+                       contact_f: wp.array2d(dtype=vec3), contact_t: wp.array2d(dtype=vec3),
+                       normal_sum: wp.array(dtype=dtype), touching: wp.array2d(dtype=wp.int32), dt: dtype):
+        """Sphere s (radius rad) of finger f's link k_link (origin x, rotation R, velocity vx, angular velocity
+        om): its contact with each object body, into the finger's joint torques and the bodies' wrenches."""
+        p = x + R * fixed_vec3(m.point_pos, s)
+        vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
+        f_sum = vec3()  # the bodies' force on the sphere
+        hit = int(0)
+        for b in range(B):
+            xb = body_x[w, b]
+            # no geom of body b within the cutoff: skip its distances (their result would go unused)
+            if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
+                Rb = body_R[w, b]
+                pl = wp.transpose(Rb) * (p - xb)
+                best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
+                # found without an adjoint; only the nearest geom's distance has one, and only within the
+                # cutoff
+                g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
+                if g >= 0:
+                    Rg = m.geom_rot[v, b, g]
+                    dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g],
+                                       m.sdf_values, wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
+                    nb = Rg * vec3(dn[1], dn[2], dn[3])
+                    best = vec4(dn[0], nb[0], nb[1], nb[2])
+                pen = rad - best[0]
+                if pen > dtype(-CONTACT_CUTOFF) / m.beta:
+                    touching[w, s] = 1
+                    n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
+                    # the finger's mobility at the sphere along n (1/kg): the chain's hinges with only
+                    # their rotor inertia and the damping's implicit share, which bounds it from above
+                    # (the links' inertia and the drive only lower it), so the implicit damping below
+                    # stays on the safe side (a hinge with neither gives no bound: left out)
+                    finger_n = dtype(0.0)
+                    for k in range(J):
+                        i = f * J + k
+                        rotor = fixed(m.armature, i) + dt * fixed(m.damping, i)
+                        if k <= k_link and rotor > dtype(0.0):
+                            lever = wp.cross(link_a[w, i], p - link_x[w, i])
+                            finger_n = finger_n + wp.dot(lever, n) * wp.dot(lever, n) / rotor
+                    cp = p - n * rad
+                    r = cp - body_c[w, b]
+                    v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
+                    vn = wp.dot(v_rel, n)
+                    # the one contact law (kernel_funcs.normal_force): its damping implicit against the
+                    # mobility of the two sides at the contact, the body's (a moving body's model
+                    # mobility times its model mass over its mass parameter) plus the finger's. Against
+                    # the body's alone, a finger pressed into a body far heavier than it (the open
+                    # hand's fingers sunk in a 3 kg safe) had its velocity reversed and grown every
+                    # substep, and the contact made energy. The friction stays explicit: implicit
+                    # against these (upper-bound) mobilities it slipped, and the scissors and the jar's
+                    # lid no longer followed the fingers.
+                    lighter = dtype(1.0)
+                    if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
+                        lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
+                    mobility = finger_n + lighter * body_mobility(m.body_inv_mass[v, b],
+                                                                  m.body_inv_inertia[v, b], Rb, r, n)
+                    fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
+                    vt = v_rel - vn * n
+                    ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt
+                    fc = fn * n + ft  # on the finger
+                    f_sum = f_sum + fc
+                    hit = 1
+                    wp.atomic_add(contact_f, w, b, -fc)
+                    wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
+                    wp.atomic_add(normal_sum, w, fn)
+        if hit != 0:  # J^T f at the sphere centre: joint k's torque a_k . ((p - o_k) x f)
+            for k in range(J):
+                if k <= k_link:
+                    i = f * J + k
+                    wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
+
+    @wp.func_replay(sphere_contact)
+    def replay_sphere_contact(m: Model, w: int, v: int, s: int, f: int, k_link: int, x: vec3, R: mat33, vx: vec3,
+                              om: vec3, rad: dtype, params: wp.array2d(dtype=dtype), link_x: wp.array2d(dtype=vec3),
+                              link_a: wp.array2d(dtype=vec3), body_x: wp.array2d(dtype=vec3),
+                              body_R: wp.array2d(dtype=mat33), body_c: wp.array2d(dtype=vec3),
+                              body_v: wp.array2d(dtype=vec3), body_w: wp.array2d(dtype=vec3),
+                              gen: wp.array2d(dtype=dtype),
+                              contact_f: wp.array2d(dtype=vec3), contact_t: wp.array2d(dtype=vec3),
+                              normal_sum: wp.array(dtype=dtype), touching: wp.array2d(dtype=wp.int32), dt: dtype):
+        return
+
+    @wp.func(inline=True)
+    def link_contact(m: Model, w: int, v: int, link: int, params: wp.array2d(dtype=dtype),
+                     hqd: wp.array2d(dtype=dtype), link_x: wp.array2d(dtype=vec3), link_R: wp.array2d(dtype=mat33),
+                     link_a: wp.array2d(dtype=vec3), body_x: wp.array2d(dtype=vec3), body_R: wp.array2d(dtype=mat33),
+                     body_c: wp.array2d(dtype=vec3), body_v: wp.array2d(dtype=vec3), body_w: wp.array2d(dtype=vec3),
+                     gen: wp.array2d(dtype=dtype), contact_f: wp.array2d(dtype=vec3),
+                     contact_t: wp.array2d(dtype=vec3), normal_sum: wp.array(dtype=dtype),
+                     touching: wp.array2d(dtype=wp.int32), only_touching: int, points_per_link: int, dt: dtype):
+        """Each sphere of one finger link's contact (link = f * J + k)."""
+        f = link / J
+        k_link = link - f * J
+        x = link_x[w, link]
+        R = link_R[w, link]
+        # the link's velocity over its chain's joints (link_frames' origins and axes): its origin's and its
+        # angular velocity, so a sphere's is one cross product away
+        vx = vec3()
+        om = vec3()
+        for k in range(J):
+            if k <= k_link:
+                i = f * J + k
+                a = link_a[w, i]
+                vx = vx + wp.cross(a, x - link_x[w, i]) * hqd[w, i]
+                om = om + a * hqd[w, i]
+        # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
+        # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
+        for sp in range(points_per_link):
+            s = link * points_per_link + sp
+            rad = m.point_radius[s]
+            skip = rad <= dtype(0.0)
+            if only_touching != 0:
+                if touching[w, s] == 0:
+                    skip = True
+            if not skip:
+                sphere_contact(m, w, v, s, f, k_link, x, R, vx, om, rad, params, link_x, link_a, body_x, body_R,
+                               body_c, body_v, body_w, gen, contact_f, contact_t, normal_sum, touching, dt)
+
+    @wp.func_replay(link_contact)
+    def replay_link_contact(m: Model, w: int, v: int, link: int, params: wp.array2d(dtype=dtype),
+                            hqd: wp.array2d(dtype=dtype), link_x: wp.array2d(dtype=vec3),
+                            link_R: wp.array2d(dtype=mat33), link_a: wp.array2d(dtype=vec3),
+                            body_x: wp.array2d(dtype=vec3), body_R: wp.array2d(dtype=mat33),
+                            body_c: wp.array2d(dtype=vec3), body_v: wp.array2d(dtype=vec3),
+                            body_w: wp.array2d(dtype=vec3),
+                            gen: wp.array2d(dtype=dtype), contact_f: wp.array2d(dtype=vec3),
+                            contact_t: wp.array2d(dtype=vec3), normal_sum: wp.array(dtype=dtype),
+                            touching: wp.array2d(dtype=wp.int32), only_touching: int, points_per_link: int, dt: dtype):
+        return
+
     @wp.kernel(module="unique", enable_backward=True)
     def finger_contact(
         m: Model,
@@ -148,96 +289,8 @@ def build_finger_contact(Model, dtype, joints: int, points: int, bodies: int, ge
                     touched = touched + touching[w, link * P + sp]
                 if touched == 0:
                     continue
-            f = link / J
-            k_link = link - f * J
-            x = link_x[w, link]
-            R = link_R[w, link]
-            # the link's velocity over its chain's joints (link_frames' origins and axes): its origin's and its
-            # angular velocity, so a sphere's is one cross product away
-            vx = vec3()
-            om = vec3()
-            for k in range(J):
-                if k <= k_link:
-                    i = f * J + k
-                    a = link_a[w, i]
-                    vx = vx + wp.cross(a, x - link_x[w, i]) * hqd[w, i]
-                    om = om + a * hqd[w, i]
-            # each sphere adds its own contact (atomics, in sphere order as a thread per sphere did): nothing is
-            # carried from one sphere to the next but the chain above, so the loop's adjoint is exact
-            for sp in range(points_per_link):
-                s = link * points_per_link + sp
-                rad = m.point_radius[s]
-                skip = rad <= dtype(0.0)
-                if only_touching != 0:
-                    if touching[w, s] == 0:
-                        skip = True
-                if not skip:
-                    p = x + R * fixed_vec3(m.point_pos, s)
-                    vp = vx + wp.cross(om, p - x)  # the sphere centre's velocity
-                    f_sum = vec3()  # the bodies' force on the sphere
-                    hit = int(0)
-                    for b in range(B):
-                        xb = body_x[w, b]
-                        # no geom of body b within the cutoff: skip its distances (their result would go unused)
-                        if wp.length(p - xb) < m.body_bound[v, b] + rad + dtype(CONTACT_CUTOFF) / m.beta:
-                            Rb = body_R[w, b]
-                            pl = wp.transpose(Rb) * (p - xb)
-                            best = vec4(dtype(1.0e6), dtype(0.0), dtype(0.0), dtype(1.0))
-                            # found without an adjoint; only the nearest geom's distance has one, and only within the
-                            # cutoff
-                            g = nearest_geom(m, v, b, pl, rad + dtype(CONTACT_CUTOFF) / m.beta)
-                            if g >= 0:
-                                Rg = m.geom_rot[v, b, g]
-                                dn = geom_distance(m.geom_kind[v, b, g], m.geom_size[v, b, g], m.geom_grid[v, b, g],
-                                                   m.sdf_values, wp.transpose(Rg) * (pl - m.geom_pos[v, b, g]))
-                                nb = Rg * vec3(dn[1], dn[2], dn[3])
-                                best = vec4(dn[0], nb[0], nb[1], nb[2])
-                            pen = rad - best[0]
-                            if pen > dtype(-CONTACT_CUTOFF) / m.beta:
-                                touching[w, s] = 1
-                                n = Rb * vec3(best[1], best[2], best[3])  # world, out of the body
-                                # the finger's mobility at the sphere along n (1/kg): the chain's hinges with only
-                                # their rotor inertia and the damping's implicit share, which bounds it from above
-                                # (the links' inertia and the drive only lower it), so the implicit damping below
-                                # stays on the safe side (a hinge with neither gives no bound: left out)
-                                finger_n = dtype(0.0)
-                                for k in range(J):
-                                    i = f * J + k
-                                    rotor = fixed(m.armature, i) + dt * fixed(m.damping, i)
-                                    if k <= k_link and rotor > dtype(0.0):
-                                        lever = wp.cross(link_a[w, i], p - link_x[w, i])
-                                        finger_n = finger_n + wp.dot(lever, n) * wp.dot(lever, n) / rotor
-                                cp = p - n * rad
-                                r = cp - body_c[w, b]
-                                v_rel = vp - body_v[w, b] - wp.cross(body_w[w, b], r)
-                                vn = wp.dot(v_rel, n)
-                                # the one contact law (kernel_funcs.normal_force): its damping implicit against the
-                                # mobility of the two sides at the contact, the body's (a moving body's model
-                                # mobility times its model mass over its mass parameter) plus the finger's. Against
-                                # the body's alone, a finger pressed into a body far heavier than it (the open
-                                # hand's fingers sunk in a 3 kg safe) had its velocity reversed and grown every
-                                # substep, and the contact made energy. The friction stays explicit: implicit
-                                # against these (upper-bound) mobilities it slipped, and the scissors and the jar's
-                                # lid no longer followed the fingers.
-                                lighter = dtype(1.0)
-                                if b >= m.first_moving and m.body_mass[v, b] > dtype(0.0):
-                                    lighter = m.body_mass[v, b] / params[w, m.mass_col + b - m.first_moving]
-                                mobility = finger_n + lighter * body_mobility(m.body_inv_mass[v, b],
-                                                                              m.body_inv_inertia[v, b], Rb, r, n)
-                                fn = normal_force(m.ke * softplus(pen, m.beta), vn, m.kd, dt, mobility)
-                                vt = v_rel - vn * n
-                                ft = -params[w, m.mu_col] * fn / slip_norm(vt, m.v_slip) * vt
-                                fc = fn * n + ft  # on the finger
-                                f_sum = f_sum + fc
-                                hit = 1
-                                wp.atomic_add(contact_f, w, b, -fc)
-                                wp.atomic_add(contact_t, w, b, wp.cross(r, -fc))
-                                wp.atomic_add(normal_sum, w, fn)
-                    if hit != 0:  # J^T f at the sphere centre: joint k's torque a_k . ((p - o_k) x f)
-                        for k in range(J):
-                            if k <= k_link:
-                                i = f * J + k
-                                wp.atomic_add(gen, w, i, wp.dot(link_a[w, i], wp.cross(p - link_x[w, i], f_sum)))
+            link_contact(m, w, v, link, params, hqd, link_x, link_R, link_a, body_x, body_R, body_c, body_v, body_w,
+                         gen, contact_f, contact_t, normal_sum, touching, only_touching, points_per_link, dt)
 
     return FingerContactFuncs(geom_distance=geom_distance, finger_contact=finger_contact)
 
