@@ -100,6 +100,7 @@ class ArticulatedTrajectory:
         self._forward_cmds = {lo: self._launches(self._bind(), lo, hi) for lo, hi in self.blocks}
         self._reverse_cmds = None  # per block, the recorded adjoint launches (at the first backward)
         self._residual_buffers = []  # their hand_residual launches' outputs and seeds
+        self._adj_torch_zeroed: list[wp.array] = []  # warp views of adj_torch
         self.adj_torch: dict[str, torch.Tensor] | None = None  # adjoints of _torch, by name (the simulator's)
         self.adj_warp: dict[str, list] | None = None  # adjoints of _warp, by group
         self.lease = 0  # bumped whenever the simulator's pool hands this trajectory out or takes it back
@@ -245,10 +246,17 @@ class ArticulatedTrajectory:
                           {name: [wp.zeros_like(a) for a in group] for name, group in self._warp.items()})
                 self.sim._adjoint_buffers = shared
             self.adj_torch, self.adj_warp = shared
+            # zeroed by warp (a memset each): torch splits a buffer this size over its OpenMP threads, which then
+            # spin on the cores the warp blocks need (as sim/_stepper.py's)
+            self._adj_torch_zeroed = [wp.from_torch(t) for t in self.adj_torch.values()]
             adjoint = self._bind(self.adj_torch, self.adj_warp)
             self._reverse_cmds = {lo: self._launches(self._bind(), lo, hi, adjoint) for lo, hi in self.blocks}
-        for t in self.adj_torch.values():
-            t.zero_()
+        if wp.get_device(self.sim.device).is_cpu:
+            for a in self._adj_torch_zeroed:
+                a.zero_()
+        else:  # on torch's stream, ordered with the copies below
+            for t in self.adj_torch.values():
+                t.zero_()
         for group in self.adj_warp.values():
             for a in group:
                 a.zero_()

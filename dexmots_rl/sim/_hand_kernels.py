@@ -6,12 +6,12 @@ Three kernels per substep (sim/_articulated.py runs them around the object tree'
   finger chain, once per substep, into arrays the two kernels below read (their adjoints flow back through them).
 * ``finger_contact``, a thread per world and finger link (on a CPU, per world): the fingers' contact with the object
   (sim/_finger_contact_kernels.py).
-* ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces (a sum over links
-  of J^T M J and J^T (inertial) wrenches), the motor's PD drive (implicit, smoothly saturated at its effort),
-  joint damping, friction and range stops, the contact forces, and the solve.
+* ``hand_substep``, a thread per world and finger: the chain's mass matrix and bias forces, the motor's implicit
+  PD drive (saturated at its effort), joint damping, friction and range stops, the contact forces, and the solve,
+  whose inverse it keeps; its adjoint is ``hand_residual``'s (the solve's adjoint as a residual's gradient, O(J)).
 
 ``observe`` writes every hand link's pose and the fingertips. Hand joints are hinges; loops have compile-time
-trip counts (exact adjoints); everything is generic in the float type.
+trip counts (exact adjoints); everything is generic in the float type (docs/devnotes.md: the hand's adjoint).
 """
 
 # no `from __future__ import annotations`: warp reads the closure-typed annotations at definition time
@@ -160,6 +160,15 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         return
 
     @wp.func
+    def link_motion(acc: vec3, al: vec3, om: vec3, lever: vec3, a: vec3, qd: dtype):
+        """The chain's velocity-product terms carried to the next link, whose origin is ``lever`` on from the
+        last and whose joint turns at ``qd`` about ``a``: its origin's acceleration, then the link's angular
+        acceleration and velocity."""
+        acc_next = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
+        al_next = al + wp.cross(om, a * qd)
+        return acc_next, al_next, om + a * qd
+
+    @wp.func
     def joint_terms(m: Model, w: int, f: int, qf: vecJ, qdf: vecJ, tau: wp.array2d(dtype=dtype),
                     q_target: wp.array2d(dtype=dtype), kp: wp.array2d(dtype=dtype), kd: wp.array2d(dtype=dtype),
                     gen: wp.array2d(dtype=dtype), dt: dtype):
@@ -241,10 +250,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             x = link_x[w, i]
             R = link_R[w, i]
             a = link_a[w, i]
-            lever = x - o_prev
-            acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
-            al = al + wp.cross(om, a * qdf[k])
-            om = om + a * qdf[k]
+            acc, al, om = link_motion(acc, al, om, x - o_prev, a, qdf[k])
             o_prev = x
             O = O + wp.outer(x, unit_j(k))
             A = A + wp.outer(a, unit_j(k))
@@ -331,10 +337,7 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
             x = link_x[w, i]
             R = link_R[w, i]
             a = link_a[w, i]
-            lever = x - o_prev
-            acc = acc + wp.cross(al, lever) + wp.cross(om, wp.cross(om, lever))
-            al = al + wp.cross(om, a * qdf[k])
-            om = om + a * qdf[k]
+            acc, al, om = link_motion(acc, al, om, x - o_prev, a, qdf[k])
             o_prev = x
             wy = wy + a * y[k]
             wq = wq + a * qdd[k]
