@@ -95,6 +95,42 @@ def test_gradient_through_finger_contact_matches_finite_differences():
     np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
+@pytest.mark.slow  # the tool scene's float64 build
+def test_gradient_to_the_hand_state_matches_finite_differences():
+    """d(state after one step)/d(hand joint angles and velocities), in float64 in contact, against central
+    differences: the hand solve's adjoint (its residual's gradient) through the mass matrix, the bias forces, the
+    drive, the friction and the range stops, which a position target's gradient reaches only in later substeps."""
+    scene = _scene("spray_bottle_a")
+    sim = ArticulatedSimulator(scene, 1, dtype=torch.float64)
+    q, qd = sim.initial_state()
+    params, ctrl = sim.default_params(), _closing(sim)
+    with torch.no_grad():  # into contact, the fingers moving
+        for _ in range(8):
+            out = sim.step(q, qd, ctrl, params)
+            q, qd = out.joint_q, out.joint_qd
+    assert float(out.contact_force[0]) > 0.05
+    weights = torch.randn(sim.nv, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+
+    def loss(q_in, qd_in):
+        o = sim.step(q_in, qd_in, ctrl, params)
+        return (o.joint_qd[0] * weights).sum() + (o.joint_q[0, :sim.nu] * weights[:sim.nu]).sum() * 10.0
+
+    q_in, qd_in = q.clone().requires_grad_(True), qd.clone().requires_grad_(True)
+    loss(q_in, qd_in).backward()
+    eps = 1e-6
+    for state, grad in ((q, q_in.grad), (qd, qd_in.grad)):
+        fd = np.zeros(sim.nu)
+        with torch.no_grad():
+            for i in range(sim.nu):
+                plus, minus = state.clone(), state.clone()
+                plus[0, i] += eps
+                minus[0, i] -= eps
+                pair = [(plus, qd), (minus, qd)] if state is q else [(q, plus), (q, minus)]
+                fd[i] = (loss(*pair[0]) - loss(*pair[1])).item() / (2 * eps)
+        assert np.abs(fd).max() > 1e-3
+        np.testing.assert_allclose(grad[0, :sim.nu].numpy(), fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
+
+
 def test_palm_pushes_the_object():
     """A bottle whose top is 3 mm inside the palm is pushed down by it (compared with the same scene without palm
     contact; the fingers' contact is switched off, as the bottle also overlaps them there)."""
