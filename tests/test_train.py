@@ -246,5 +246,5 @@ def test_load_kernels_compiles_the_envs_simulator_and_leaves_other_envs_alone():
 
     load_kernels(object())  # no simulator: nothing to do
     env = make_env("screw_claw", num_envs=1)
-    load_kernels(env)  # the kernel cache is warm in the test session: a file check
+    load_kernels(env)  # the kernel cache is warm from the tests before: a file check
     assert env.rollout(2)["next", "reward"].shape == (1, 2, 1)
