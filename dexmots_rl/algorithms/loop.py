@@ -48,20 +48,13 @@ log = logging.getLogger(__name__)
 
 
 def load_kernels(env) -> None:
-    """Compile, or load from warp's cache, the kernels that step ``env``'s simulator (forward and adjoint: one
-    module holds both), so that a run's training clock and its ``budget`` do not count the compile. Warp builds
-    a module at its first launch: with a cold cache the suite's first repose_cube runs spent ~65 of their 300 s
-    of training CPU in the first iteration (19 s on a warm cache). An env without a simulator is left alone."""
-    from ..sim import compile_scene
-
-    sim = getattr(getattr(env, "base_env", env), "sim", None)
-    if sim is None:
-        return
-    device = "cuda" if str(sim.device).startswith("cuda") else "cpu"
-    rows = compile_scene(sim.scene, device=device, arch=None, dtypes=(sim.dtype,), contact=sim.contact, render=False)
-    for row in rows:
-        if not row["ok"]:  # the run's first launch raises the compiler's error itself
-            log.warning("kernel %s did not compile: %s", row["kernel"], row["error"])
+    """Compile, or load from warp's cache, the kernels that step ``env`` (its ``load_kernels``), so that a run's
+    training clock and its ``budget`` do not count the compile. Warp builds a module at its first launch: with a
+    cold cache the suite's first repose_cube runs spent ~65 of their 300 s of training CPU in the first iteration
+    (19 s on a warm cache). An env without kernels is left alone."""
+    load = getattr(getattr(env, "base_env", env), "load_kernels", None)
+    if load is not None:
+        load()
 
 
 class StopOnSignal:

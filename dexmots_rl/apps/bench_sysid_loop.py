@@ -65,7 +65,7 @@ def _check_truth(task: str, truth: dict[str, float], nominal_scale: float) -> No
 
     if not nominal_scale > 0 or nominal_scale == 1:
         raise ValueError(f"--nominal-scale must be positive and not 1 (a wrong model), got {nominal_scale}")
-    known = make_env(task, num_envs=1, raw=True, differentiable=False).sim.scene.param_names
+    known = make_env(task, num_envs=1, raw=True, differentiable=False).scene.param_names
     for name, value in truth.items():
         if name not in known or name == "variant":
             raise ValueError(f"--truth {name}={value}: task {task!r}'s object has no parameter {name!r}; its "

@@ -18,6 +18,7 @@ the reference window) and never read back. Reward terms are written under ``("re
 from __future__ import annotations
 
 from abc import abstractmethod
+import logging
 from contextlib import contextmanager
 
 import torch
@@ -26,7 +27,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from ..sim import SceneModel, check_device, make_simulator
+from ..sim import SceneModel, check_device, compile_scene, make_simulator
 from .actions import ActionMap, validate_action
 from .mirror import action_reflection, reflect_mirrored
 from .demos import demo_path, read_demo
@@ -35,6 +36,8 @@ from .object_params import read_object_params
 from .references import load_reference_bank
 
 __all__ = ["DexEnv", "MAX_JOINT_SPEED", "GRADIENT_COUNTS", "ScriptedPolicy"]
+
+log = logging.getLogger(__name__)
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s (m/s); a world faster than this has blown up and is reset
 # per world, int64 [N, 1]: blow-ups reset so far, and (since the env was built) backward steps whose adjoint
@@ -180,6 +183,18 @@ class DexEnv(EnvBase):
     def dt(self) -> float:
         """Simulated seconds per env step."""
         return self.sim.dt
+
+    def load_kernels(self) -> None:
+        """Compile, or load from warp's kernel cache, the kernels that step this env (forward and adjoint: one
+        module holds both) now instead of at the first step, so that whoever times the steps (a training budget)
+        does not count a cold cache's compile. A kernel that does not compile is logged; its first launch raises
+        the compiler's error."""
+        sim = self.sim
+        device = "cuda" if str(sim.device).startswith("cuda") else "cpu"
+        for row in compile_scene(sim.scene, device=device, arch=None, dtypes=(sim.dtype,), contact=sim.contact,
+                                 render=False):
+            if not row["ok"]:
+                log.warning("kernel %s did not compile: %s", row["kernel"], row["error"])
 
     def bench_poses(self):
         """The :class:`~dexmots_rl.envs.BenchPoses` of this env's scene (default: the class's ``bench``)."""
