@@ -23,7 +23,7 @@ import warp as wp
 
 from ._constants import LIMIT_WIDTH
 from ._finger_contact_kernels import build_finger_contact
-from ._kernel_funcs import build_funcs, unit_vector
+from ._kernel_funcs import build_funcs, constant_read_2d, unit_vector
 
 __all__ = ["build_hand_kernels"]
 
@@ -135,29 +135,9 @@ def build_hand_kernels(float_type, num_fingers: int, joints: int, points: int, b
         def apply_inverse(A: matJ, A_inv: matJ, b: vecJ):
             return A_inv * b
 
-    @wp.func
-    def fixed_2d(a: wp.array2d(dtype=dtype), w: int, i: int):
-        return a[w, i]
-
-    @wp.func_grad(fixed_2d)
-    def adj_fixed_2d(a: wp.array2d(dtype=dtype), w: int, i: int, adj_ret: dtype):
-        return  # a value the reverse pass reads as a constant (the step's saved solve, the outputs' adjoints)
-
-    @wp.func
-    def fixed_inverse(a: wp.array2d(dtype=matJ), w: int, f: int):
-        return a[w, f]
-
-    @wp.func_grad(fixed_inverse)
-    def adj_fixed_inverse(a: wp.array2d(dtype=matJ), w: int, f: int, adj_ret: matJ):
-        return
-
-    @wp.func
-    def fixed_accel(a: wp.array2d(dtype=vecJ), w: int, f: int):
-        return a[w, f]
-
-    @wp.func_grad(fixed_accel)
-    def adj_fixed_accel(a: wp.array2d(dtype=vecJ), w: int, f: int, adj_ret: vecJ):
-        return
+    fixed_2d = constant_read_2d(dtype)  # the step's outputs' adjoints
+    fixed_inverse = constant_read_2d(matJ)  # the forward's saved (M + D)^-1
+    fixed_accel = constant_read_2d(vecJ)  # the forward's saved joint accelerations
 
     @wp.func
     def link_motion(acc: vec3, al: vec3, om: vec3, lever: vec3, a: vec3, qd: dtype):

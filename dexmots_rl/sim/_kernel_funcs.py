@@ -22,7 +22,7 @@ import warp as wp
 
 from ._constants import FRICTION_VELOCITY
 
-__all__ = ["KernelFuncs", "build_funcs", "unit_vector"]
+__all__ = ["KernelFuncs", "build_funcs", "unit_vector", "constant_read_2d"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +65,23 @@ def unit_vector(length: int, float_type):
         return e
 
     return unit
+
+
+@functools.lru_cache(maxsize=None)
+def constant_read_2d(value_type):
+    """``read(a, w, i)``: element ``[w, i]`` of a 2-D array of ``value_type``, which the reverse pass treats as a
+    constant (an empty adjoint, as ``fixed`` does for model arrays): what a hand-written adjoint reads from the
+    forward (a saved solve) or is given (the outputs' adjoints)."""
+
+    @wp.func
+    def read(a: wp.array2d(dtype=value_type), w: int, i: int):
+        return a[w, i]
+
+    @wp.func_grad(read)
+    def adj_read(a: wp.array2d(dtype=value_type), w: int, i: int, adj_ret: value_type):
+        return
+
+    return read
 
 
 @functools.lru_cache(maxsize=None)
